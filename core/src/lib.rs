@@ -1,0 +1,46 @@
+//! # evpose-core
+//!
+//! Human pose estimation from event cameras, after Chen et al., "Efficient Human Pose Estimation
+//! via 3D Event Point Cloud" (3DV 2022), for microcontrollers: `no_std`, no allocator, every
+//! buffer sized at compile time or borrowed from the caller.
+//!
+//! The pipeline, one module per stage:
+//!
+//! | stage | module | holds |
+//! |---|---|---|
+//! | events | [`event`] | the [`Event`] type |
+//! | rasterization | [`raster`] | streaming window → event point cloud `[x, y, t_avg, p_acc, cnt]` |
+//! | sampling | [`sample`] | `M` points → `N` network inputs, seeded and reproducible |
+//! | decoding | [`simdr`] | SimDR labels and argmax decoding to 2-D joints |
+//!
+//! Bad input never panics: it yields a typed error or a counted drop.
+//!
+//! ```
+//! use evpose_core::{Davis346Storage, Event, Pushed, RasterConfig, Rasterizer};
+//!
+//! let mut r = Rasterizer::new(RasterConfig::DAVIS346, Davis346Storage::new()).unwrap();
+//! for i in 0..7_500u16 {
+//!     let e = Event::new(i % 346, i % 260, i64::from(i), i % 2 == 0);
+//!     if let Pushed::Window(w) = r.push(e) {
+//!         assert_eq!(w.summary().events, 7_500);
+//!         assert!(w.len() > 0);
+//!     }
+//! }
+//! ```
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+#![deny(missing_docs)]
+#![warn(trivial_numeric_casts, unused_qualifications)]
+
+pub mod event;
+pub mod raster;
+pub mod sample;
+pub mod simdr;
+
+pub use event::Event;
+pub use raster::{
+    ConfigError, Davis346Storage, InlineStorage, Point, Pushed, RasterConfig, RasterStats,
+    RasterStorage, Rasterizer, Window, WindowRule,
+};
+pub use sample::{rng_from_seed, sample_indices, sample_window, SampleRng};
+pub use simdr::{decode, Joint2d};

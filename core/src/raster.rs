@@ -1,0 +1,748 @@
+//! Streaming rasterization of events into the paper's event point cloud (Sec. 3.2).
+//!
+//! Events are pushed one at a time into a window. When the window closes (after a fixed event
+//! count, a fixed duration, or when its capacity is full) the rasterizer turns it into points
+//! `[x, y, t_avg, p_acc, cnt]`, one per non-empty cell `(slice, y, x)`, ordered by slice, then
+//! `y`, then `x`, with exactly the reference semantics (`shared/docs/paper-notes.md`):
+//!
+//! ```text
+//! tn = (t - t_min) / (t_max - t_min) / 1.001 * K      (f64)
+//! k  = floor(tn),  f = f32(tn - k)
+//! per cell: cnt += 1, p_acc += 2p - 1, f_acc += f     (f32, in arrival order)
+//! t_avg = (f_acc / cnt) / K + k / K                   (f32)
+//! ```
+//!
+//! # Memory
+//! No dense `K × H × W` grid (346 × 260 × 4 cells would not fit an MCU). A window of capacity
+//! `C` uses two `u64` words per event (16 bytes, the output points included) plus one `u32`
+//! histogram bin per column and per `(slice, row)`: for DAVIS346 and `K = 4`, 5.5 KiB whatever `C`.
+//!
+//! # Algorithm
+//! While a window fills, each event is packed into one word of buffer A and counted in a
+//! per-column histogram. On close, one pass turns each word into its slice and fraction and
+//! counts `(slice, row)`; two stable counting-sort passes (by column into buffer B, then by
+//! `(slice, row)` back into A) put events in cell order while keeping arrival order inside a cell,
+//! so the f32 fraction sums add up in the same order as the reference. A final pass merges runs of
+//! equal cells into points, written over the consumed prefix of A and B.
+//!
+//! # Odd input, defined
+//! - A pixel outside the configured sensor is dropped and counted ([`RasterStats::dropped_out_of_range`]).
+//! - A timestamp going backwards is accepted: rasterization depends only on the window's
+//!   `t_min`/`t_max`, never on order, exactly as in the reference. It is counted
+//!   ([`RasterStats::out_of_order`]). With a duration rule, the window's span is measured from its
+//!   first event, so an event older than that still joins the open window.
+//! - An event more than `i32::MAX` µs (about 36 minutes) away from the window's first event
+//!   closes the window and opens the next one ([`RasterStats::time_jumps`]).
+//! - A full window is closed, never silently dropped from ([`RasterStats::windows_full`]).
+//! - All events at one timestamp: every event goes to slice 0 with fraction 0.
+//! - An empty window ([`Rasterizer::flush`] before any event) yields zero points.
+
+use core::fmt;
+
+use crate::event::Event;
+
+/// Largest supported sensor width (the column is stored in 11 bits).
+pub const MAX_WIDTH: u16 = 2048;
+/// Largest supported sensor height (the row is stored in 10 bits).
+pub const MAX_HEIGHT: u16 = 1024;
+/// Largest supported number of time slices `K` (stored in 3 bits).
+pub const MAX_SLICES: u8 = 8;
+/// The paper's number of time slices.
+pub const DEFAULT_SLICES: u8 = 4;
+/// The paper's per-camera window: 7,500 events.
+pub const DEFAULT_WINDOW_EVENTS: u32 = 7_500;
+
+/// The normalization factor of the reference code: keeps the last event inside slice `K - 1`.
+const SPAN_FACTOR: f64 = 1.001;
+
+// Layout of a buffered event word (before close):  x:11 | y:10 | p:1 | (spare) | t_off:32 (i32)
+// Layout after the slice pass:                     x:11 | y:10 | p:1 | k:3 | f32 bits:32
+// Layout of a point, word A:                       x:11 | y:10 | k:3 | cnt:32 (from bit 32)
+// Layout of a point, word B:                       f_acc f32 bits:32 | p_acc i32:32
+const X_BITS: u32 = 11;
+const Y_SHIFT: u32 = 11;
+const P_SHIFT: u32 = 21;
+const K_SHIFT: u32 = 22;
+const X_MASK: u64 = (1 << X_BITS) - 1;
+const Y_MASK: u64 = (1 << 10) - 1;
+const K_MASK: u64 = (1 << 3) - 1;
+const POINT_K_SHIFT: u32 = 21;
+/// x, y and polarity bits of an event word.
+const XYP_MASK: u64 = (1 << K_SHIFT) - 1;
+
+/// When a window closes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum WindowRule {
+    /// Close after this many accepted events (the paper: 7,500 per camera).
+    Events(u32),
+    /// Close when an event arrives at least this many µs after the window's first event; that
+    /// event opens the next window.
+    Duration(u32),
+}
+
+/// Runtime configuration of a [`Rasterizer`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RasterConfig {
+    /// Sensor width in pixels, `1..=MAX_WIDTH`.
+    pub width: u16,
+    /// Sensor height in pixels, `1..=MAX_HEIGHT`.
+    pub height: u16,
+    /// Number of time slices `K`, `1..=MAX_SLICES`.
+    pub slices: u8,
+    /// When a window closes. A window also closes when the storage is full.
+    pub window: WindowRule,
+}
+
+impl RasterConfig {
+    /// The paper's configuration for a DAVIS346 camera: 346 × 260, `K = 4`, 7,500-event windows.
+    pub const DAVIS346: Self = Self {
+        width: 346,
+        height: 260,
+        slices: DEFAULT_SLICES,
+        window: WindowRule::Events(DEFAULT_WINDOW_EVENTS),
+    };
+
+    /// Number of `(slice, row)` histogram bins this configuration needs.
+    pub const fn row_bins(&self) -> usize {
+        self.slices as usize * self.height as usize
+    }
+}
+
+/// A configuration the rasterizer cannot run with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum ConfigError {
+    /// Width is 0 or above [`MAX_WIDTH`].
+    Width(u16),
+    /// Height is 0 or above [`MAX_HEIGHT`].
+    Height(u16),
+    /// Slice count is 0 or above [`MAX_SLICES`].
+    Slices(u8),
+    /// The window rule asks for 0 events or a 0 µs duration.
+    EmptyWindow,
+    /// The storage holds fewer events than a window of `Events(n)` needs, or none at all.
+    Capacity {
+        /// Events the configuration needs per window.
+        needed: usize,
+        /// Events the storage holds.
+        available: usize,
+    },
+    /// A histogram of the storage is shorter than the configuration needs.
+    Histogram {
+        /// Bins needed.
+        needed: usize,
+        /// Bins available.
+        available: usize,
+    },
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Self::Width(w) => write!(f, "sensor width {w} is outside 1..={MAX_WIDTH}"),
+            Self::Height(h) => write!(f, "sensor height {h} is outside 1..={MAX_HEIGHT}"),
+            Self::Slices(k) => write!(f, "slice count {k} is outside 1..={MAX_SLICES}"),
+            Self::EmptyWindow => write!(f, "a window must hold at least one event or microsecond"),
+            Self::Capacity { needed, available } => write!(
+                f,
+                "window needs room for {needed} events but the storage holds {available}"
+            ),
+            Self::Histogram { needed, available } => write!(
+                f,
+                "histogram needs {needed} bins but the storage has {available}"
+            ),
+        }
+    }
+}
+
+impl core::error::Error for ConfigError {}
+
+/// The memory a [`Rasterizer`] works in: two equal event buffers and two histograms.
+///
+/// [`InlineStorage`] keeps everything inline with compile-time sizes (for a `static` on an MCU);
+/// a host may implement this trait over heap buffers for windows of any size.
+pub trait RasterStorage {
+    /// Borrows all four buffers at once.
+    fn parts(&mut self) -> RasterParts<'_>;
+    /// Borrows the two event buffers for reading points.
+    fn words(&self) -> (&[u64], &[u64]);
+}
+
+/// Mutable views of a [`RasterStorage`].
+pub struct RasterParts<'a> {
+    /// Event buffer A: holds the window's events, then (with B) its points.
+    pub a: &'a mut [u64],
+    /// Event buffer B: scratch for sorting, then (with A) the points. Same length as `a`.
+    pub b: &'a mut [u64],
+    /// One bin per sensor column.
+    pub hist_x: &'a mut [u32],
+    /// One bin per `(slice, row)`.
+    pub hist_rows: &'a mut [u32],
+}
+
+/// Inline, compile-time-sized storage: `CAP` events, `MAX_W` columns, `MAX_ROWS` `(slice, row)`
+/// bins (`K × H`). Size: `16 × CAP + 4 × (MAX_W + MAX_ROWS)` bytes.
+pub struct InlineStorage<const CAP: usize, const MAX_W: usize, const MAX_ROWS: usize> {
+    a: [u64; CAP],
+    b: [u64; CAP],
+    hist_x: [u32; MAX_W],
+    hist_rows: [u32; MAX_ROWS],
+}
+
+impl<const CAP: usize, const MAX_W: usize, const MAX_ROWS: usize>
+    InlineStorage<CAP, MAX_W, MAX_ROWS>
+{
+    /// Zeroed storage; `const` so that it can initialize a `static`.
+    pub const fn new() -> Self {
+        const {
+            assert!(CAP > 0, "a window must hold at least one event");
+            assert!(
+                CAP <= u32::MAX as usize,
+                "event counts are stored in 32 bits"
+            );
+            assert!(
+                MAX_W > 0 && MAX_W <= MAX_WIDTH as usize,
+                "MAX_W must be in 1..=2048"
+            );
+            assert!(
+                MAX_ROWS > 0 && MAX_ROWS <= MAX_SLICES as usize * MAX_HEIGHT as usize,
+                "MAX_ROWS (slices × height) must be in 1..=8192"
+            );
+        }
+        Self {
+            a: [0; CAP],
+            b: [0; CAP],
+            hist_x: [0; MAX_W],
+            hist_rows: [0; MAX_ROWS],
+        }
+    }
+}
+
+impl<const CAP: usize, const MAX_W: usize, const MAX_ROWS: usize> Default
+    for InlineStorage<CAP, MAX_W, MAX_ROWS>
+{
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const CAP: usize, const MAX_W: usize, const MAX_ROWS: usize> RasterStorage
+    for InlineStorage<CAP, MAX_W, MAX_ROWS>
+{
+    fn parts(&mut self) -> RasterParts<'_> {
+        RasterParts {
+            a: &mut self.a,
+            b: &mut self.b,
+            hist_x: &mut self.hist_x,
+            hist_rows: &mut self.hist_rows,
+        }
+    }
+
+    fn words(&self) -> (&[u64], &[u64]) {
+        (&self.a, &self.b)
+    }
+}
+
+/// Storage for the paper's DAVIS346 configuration: 7,500-event windows, up to 346 × 260, `K ≤ 4`.
+/// 121.5 KiB.
+pub type Davis346Storage = InlineStorage<7_500, 346, 1_040>;
+
+/// Counters of everything the rasterizer did with its input; they only grow.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RasterStats {
+    /// Events stored into a window.
+    pub accepted: u64,
+    /// Events dropped because the pixel lies outside the configured sensor.
+    pub dropped_out_of_range: u64,
+    /// Events whose timestamp is earlier than the previous accepted event's.
+    pub out_of_order: u64,
+    /// Windows closed early because an event lay more than `i32::MAX` µs from the window start.
+    pub time_jumps: u64,
+    /// Windows closed because the storage was full before the window rule closed them.
+    pub windows_full: u64,
+    /// Windows closed, by any cause (flushes of an empty window included).
+    pub windows: u64,
+}
+
+/// Why [`Rasterizer::push`] dropped an event.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum DropReason {
+    /// The pixel lies outside the configured sensor.
+    OutOfRange,
+}
+
+/// What [`Rasterizer::push`] did with an event.
+#[derive(Debug)]
+pub enum Pushed<'a> {
+    /// The event is buffered in the open window.
+    Buffered,
+    /// The event was dropped and counted in [`RasterStats`].
+    Dropped(DropReason),
+    /// A window closed; its point cloud is borrowed until the next push. The event just pushed
+    /// is either its last event or, when the window closed before it, held for the next window.
+    Window(Window<'a>),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    Filling,
+    Closed { points: usize },
+}
+
+/// Streaming rasterizer over a [`RasterStorage`].
+pub struct Rasterizer<S> {
+    storage: S,
+    config: RasterConfig,
+    capacity: usize,
+    phase: Phase,
+    len: usize,
+    t_first: i64,
+    t_last: i64,
+    off_min: i32,
+    off_max: i32,
+    /// An event that closed the previous window and opens the next one.
+    pending: Option<Event>,
+    stats: RasterStats,
+    summary: WindowSummary,
+}
+
+impl<S: RasterStorage> Rasterizer<S> {
+    /// Creates a rasterizer, checking the configuration against the storage.
+    pub fn new(config: RasterConfig, mut storage: S) -> Result<Self, ConfigError> {
+        let (capacity, hx, hr) = {
+            let parts = storage.parts();
+            (
+                parts.a.len().min(parts.b.len()),
+                parts.hist_x.len(),
+                parts.hist_rows.len(),
+            )
+        };
+        check_config(&config, capacity, hx, hr)?;
+        let mut r = Self {
+            storage,
+            config,
+            capacity,
+            phase: Phase::Filling,
+            len: 0,
+            t_first: 0,
+            t_last: i64::MIN,
+            off_min: 0,
+            off_max: 0,
+            pending: None,
+            stats: RasterStats::default(),
+            summary: WindowSummary::default(),
+        };
+        r.begin_window();
+        Ok(r)
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &RasterConfig {
+        &self.config
+    }
+
+    /// Events one window can hold.
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
+    /// Events buffered in the open window.
+    pub fn buffered(&self) -> usize {
+        match self.phase {
+            Phase::Filling => self.len,
+            Phase::Closed { .. } => usize::from(self.pending.is_some()),
+        }
+    }
+
+    /// Counters since creation.
+    pub fn stats(&self) -> &RasterStats {
+        &self.stats
+    }
+
+    /// Pushes one event. Never panics: bad events are dropped and counted, and a window that
+    /// cannot take the event is closed first.
+    pub fn push(&mut self, event: Event) -> Pushed<'_> {
+        if event.x >= self.config.width || event.y >= self.config.height {
+            self.stats.dropped_out_of_range += 1;
+            return Pushed::Dropped(DropReason::OutOfRange);
+        }
+        if let Phase::Closed { .. } = self.phase {
+            self.begin_window();
+            if let Some(held) = self.pending.take() {
+                if self.insert(held) {
+                    self.pending = Some(event);
+                    return Pushed::Window(self.window());
+                }
+            }
+        }
+        if self.insert(event) {
+            Pushed::Window(self.window())
+        } else {
+            Pushed::Buffered
+        }
+    }
+
+    /// Closes the open window now (end of stream, or a timer on a quiet sensor) and returns it.
+    /// An empty window gives zero points. If the last window closed with an event held for the
+    /// next one, that event forms the new window.
+    pub fn flush(&mut self) -> Window<'_> {
+        if let Phase::Closed { .. } = self.phase {
+            self.begin_window();
+            if let Some(held) = self.pending.take() {
+                // A window of one event cannot close by time; it may close by count.
+                self.insert(held);
+            }
+        }
+        if self.phase == Phase::Filling {
+            self.close();
+        }
+        self.window()
+    }
+
+    /// The most recently closed window, if the rasterizer has not reopened since.
+    pub fn last_window(&self) -> Option<Window<'_>> {
+        match self.phase {
+            Phase::Closed { .. } => Some(self.window()),
+            Phase::Filling => None,
+        }
+    }
+
+    fn window(&self) -> Window<'_> {
+        let points = match self.phase {
+            Phase::Closed { points } => points,
+            Phase::Filling => 0,
+        };
+        let (a, b) = self.storage.words();
+        Window {
+            a: &a[..points],
+            b: &b[..points],
+            slices: self.config.slices,
+            summary: self.summary,
+        }
+    }
+
+    fn begin_window(&mut self) {
+        let parts = self.storage.parts();
+        parts.hist_x[..usize::from(self.config.width)].fill(0);
+        parts.hist_rows[..self.config.row_bins()].fill(0);
+        self.phase = Phase::Filling;
+        self.len = 0;
+    }
+
+    /// Stores an accepted event in the filling window; returns whether the window closed.
+    fn insert(&mut self, event: Event) -> bool {
+        if self.len > 0 {
+            let offset = event
+                .t
+                .checked_sub(self.t_first)
+                .and_then(|d| i32::try_from(d).ok());
+            let outside = match (offset, self.config.window) {
+                (None, _) => {
+                    self.stats.time_jumps += 1;
+                    true
+                }
+                (Some(off), WindowRule::Duration(d)) => i64::from(off) >= i64::from(d),
+                (Some(_), WindowRule::Events(_)) => false,
+            };
+            if outside {
+                self.close();
+                self.pending = Some(event);
+                return true;
+            }
+        } else {
+            self.t_first = event.t;
+            self.off_min = 0;
+            self.off_max = 0;
+        }
+        if event.t < self.t_last {
+            self.stats.out_of_order += 1;
+        }
+        self.t_last = event.t;
+        // In range: checked above against t_first, or 0 for the first event.
+        let off = (event.t - self.t_first) as i32;
+        self.off_min = self.off_min.min(off);
+        self.off_max = self.off_max.max(off);
+        let parts = self.storage.parts();
+        parts.a[self.len] = u64::from(event.x)
+            | u64::from(event.y) << Y_SHIFT
+            | u64::from(event.on) << P_SHIFT
+            | u64::from(off as u32) << 32;
+        parts.hist_x[usize::from(event.x)] += 1;
+        self.len += 1;
+        self.stats.accepted += 1;
+        let by_rule = matches!(self.config.window, WindowRule::Events(n) if self.len >= n as usize);
+        if by_rule || self.len >= self.capacity {
+            if !by_rule {
+                self.stats.windows_full += 1;
+            }
+            self.close();
+            return true;
+        }
+        false
+    }
+
+    fn close(&mut self) {
+        let n = self.len;
+        self.summary = WindowSummary {
+            events: n as u32,
+            t_min: self.t_first + i64::from(self.off_min),
+            t_max: self.t_first + i64::from(self.off_max),
+        };
+        let parts = self.storage.parts();
+        let points = rasterize(&self.config, parts, n, self.off_min, self.off_max);
+        self.phase = Phase::Closed { points };
+        self.stats.windows += 1;
+    }
+}
+
+fn check_config(
+    c: &RasterConfig,
+    capacity: usize,
+    hist_x: usize,
+    hist_rows: usize,
+) -> Result<(), ConfigError> {
+    if c.width == 0 || c.width > MAX_WIDTH {
+        return Err(ConfigError::Width(c.width));
+    }
+    if c.height == 0 || c.height > MAX_HEIGHT {
+        return Err(ConfigError::Height(c.height));
+    }
+    if c.slices == 0 || c.slices > MAX_SLICES {
+        return Err(ConfigError::Slices(c.slices));
+    }
+    let needed = match c.window {
+        WindowRule::Events(0) | WindowRule::Duration(0) => return Err(ConfigError::EmptyWindow),
+        WindowRule::Events(n) => n as usize,
+        WindowRule::Duration(_) => 1,
+    };
+    if capacity < needed || capacity > u32::MAX as usize {
+        return Err(ConfigError::Capacity {
+            needed,
+            available: capacity,
+        });
+    }
+    if hist_x < usize::from(c.width) {
+        return Err(ConfigError::Histogram {
+            needed: usize::from(c.width),
+            available: hist_x,
+        });
+    }
+    if hist_rows < c.row_bins() {
+        return Err(ConfigError::Histogram {
+            needed: c.row_bins(),
+            available: hist_rows,
+        });
+    }
+    Ok(())
+}
+
+/// Turns the `n` buffered events of `parts.a` into points; returns the point count.
+fn rasterize(c: &RasterConfig, p: RasterParts<'_>, n: usize, off_min: i32, off_max: i32) -> usize {
+    if n == 0 {
+        return 0;
+    }
+    let events = &mut p.a[..n];
+    let sorted = &mut p.b[..n];
+    assign_slices(c, events, p.hist_rows, off_min, off_max);
+    // Stable LSD counting sort: by column, then by (slice, row).
+    exclusive_prefix_sum(&mut p.hist_x[..usize::from(c.width)]);
+    scatter(events, sorted, p.hist_x, |w| (w & X_MASK) as usize);
+    exclusive_prefix_sum(&mut p.hist_rows[..c.row_bins()]);
+    let h = u64::from(c.height);
+    scatter(sorted, events, p.hist_rows, |w| {
+        (((w >> K_SHIFT) & K_MASK) * h + ((w >> Y_SHIFT) & Y_MASK)) as usize
+    });
+    merge_cells(p.a, p.b, n)
+}
+
+/// Replaces each word's time offset by its slice and f32 fraction; counts `(slice, row)` bins.
+fn assign_slices(
+    c: &RasterConfig,
+    events: &mut [u64],
+    hist_rows: &mut [u32],
+    off_min: i32,
+    off_max: i32,
+) {
+    let span = f64::from(off_max) - f64::from(off_min);
+    let k_max = u64::from(c.slices - 1);
+    let slices = f64::from(c.slices);
+    let height = usize::from(c.height);
+    for w in events.iter_mut() {
+        let off = (*w >> 32) as u32 as i32;
+        let (k, frac) = if span > 0.0 {
+            // Same operations, in the same order, as the reference (float64).
+            let tn = (f64::from(off) - f64::from(off_min)) / span / SPAN_FACTOR * slices;
+            // tn >= 0, so truncation is floor; tn < K because of the 1.001 factor.
+            let k = (tn as u64).min(k_max);
+            (k, (tn - k as f64) as f32)
+        } else {
+            (0, 0.0)
+        };
+        let y = ((*w >> Y_SHIFT) & Y_MASK) as usize;
+        hist_rows[k as usize * height + y] += 1;
+        *w = (*w & XYP_MASK) | k << K_SHIFT | u64::from(frac.to_bits()) << 32;
+    }
+}
+
+fn exclusive_prefix_sum(bins: &mut [u32]) {
+    let mut total = 0;
+    for b in bins {
+        let count = *b;
+        *b = total;
+        total += count;
+    }
+}
+
+/// Stable counting-sort scatter of `src` into `dst` by `key`, using `starts` (prefix sums).
+fn scatter(src: &[u64], dst: &mut [u64], starts: &mut [u32], key: impl Fn(u64) -> usize) {
+    for &w in src {
+        let slot = &mut starts[key(w)];
+        dst[*slot as usize] = w;
+        *slot += 1;
+    }
+}
+
+/// Merges runs of equal cells in the sorted `a[..n]` into points written to `(a[j], b[j])`.
+///
+/// Point `j` is written only after event `j` has been read (there are never more points than
+/// events read so far), so the merge runs in place.
+fn merge_cells(a: &mut [u64], b: &mut [u64], n: usize) -> usize {
+    const CELL_MASK: u64 = X_MASK | Y_MASK << Y_SHIFT | K_MASK << K_SHIFT;
+    let mut points = 0;
+    let mut cell = a[0] & CELL_MASK;
+    let (mut cnt, mut p_acc, mut f_acc) = (0u32, 0i32, 0f32);
+    for i in 0..n {
+        let w = a[i];
+        if w & CELL_MASK != cell {
+            write_point(a, b, points, cell, cnt, p_acc, f_acc);
+            points += 1;
+            cell = w & CELL_MASK;
+            (cnt, p_acc, f_acc) = (0, 0, 0.0);
+        }
+        cnt += 1;
+        p_acc += if w >> P_SHIFT & 1 == 1 { 1 } else { -1 };
+        f_acc += f32::from_bits((w >> 32) as u32);
+    }
+    write_point(a, b, points, cell, cnt, p_acc, f_acc);
+    points + 1
+}
+
+fn write_point(
+    a: &mut [u64],
+    b: &mut [u64],
+    j: usize,
+    cell: u64,
+    cnt: u32,
+    p_acc: i32,
+    f_acc: f32,
+) {
+    let x_y = cell & (X_MASK | Y_MASK << Y_SHIFT);
+    let k = (cell >> K_SHIFT) & K_MASK;
+    a[j] = x_y | k << POINT_K_SHIFT | u64::from(cnt) << 32;
+    b[j] = u64::from(f_acc.to_bits()) | u64::from(p_acc as u32) << 32;
+}
+
+/// Time extent of a closed window.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct WindowSummary {
+    /// Events in the window.
+    pub events: u32,
+    /// Earliest timestamp, µs.
+    pub t_min: i64,
+    /// Latest timestamp, µs.
+    pub t_max: i64,
+}
+
+/// A closed window's point cloud, borrowed from the rasterizer's storage.
+#[derive(Clone, Copy, Debug)]
+pub struct Window<'a> {
+    a: &'a [u64],
+    b: &'a [u64],
+    slices: u8,
+    summary: WindowSummary,
+}
+
+impl<'a> Window<'a> {
+    /// Number of points (non-empty cells).
+    pub fn len(&self) -> usize {
+        self.a.len()
+    }
+
+    /// Whether the window has no points.
+    pub fn is_empty(&self) -> bool {
+        self.a.is_empty()
+    }
+
+    /// Event count and time extent.
+    pub fn summary(&self) -> WindowSummary {
+        self.summary
+    }
+
+    /// Point `i` in (slice, y, x) order, or `None` past the end.
+    pub fn get(&self, i: usize) -> Option<Point> {
+        Some(decode_point(*self.a.get(i)?, *self.b.get(i)?, self.slices))
+    }
+
+    /// The points in (slice, y, x) order.
+    pub fn iter(&self) -> impl ExactSizeIterator<Item = Point> + 'a {
+        let slices = self.slices;
+        self.a
+            .iter()
+            .zip(self.b)
+            .map(move |(&wa, &wb)| decode_point(wa, wb, slices))
+    }
+}
+
+fn decode_point(wa: u64, wb: u64, slices: u8) -> Point {
+    let slice = ((wa >> POINT_K_SHIFT) & K_MASK) as u8;
+    let cnt = (wa >> 32) as u32;
+    let f_acc = f32::from_bits(wb as u32);
+    let k = f32::from(slices);
+    Point {
+        x: (wa & X_MASK) as u16,
+        y: ((wa >> Y_SHIFT) & Y_MASK) as u16,
+        slice,
+        // Same f32 operations as the reference: (f_acc / cnt) / K + k / K.
+        t_avg: (f_acc / cnt as f32) / k + f32::from(slice) / k,
+        p_acc: (wb >> 32) as u32 as i32,
+        cnt,
+    }
+}
+
+/// One point of the event point cloud: a non-empty `(slice, y, x)` cell.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Point {
+    /// Column.
+    pub x: u16,
+    /// Row.
+    pub y: u16,
+    /// Time slice `k`, `0..K`.
+    pub slice: u8,
+    /// Mean normalized time in `[0, 1)`: `(mean fraction) / K + k / K`.
+    pub t_avg: f32,
+    /// ON events minus OFF events.
+    pub p_acc: i32,
+    /// Events in the cell.
+    pub cnt: u32,
+}
+
+impl Point {
+    /// The network's five input channels `[x, y, t_avg, p_acc, cnt]`, raw and unnormalized.
+    pub fn features(&self) -> [f32; 5] {
+        [
+            f32::from(self.x),
+            f32::from(self.y),
+            self.t_avg,
+            self.p_acc as f32,
+            self.cnt as f32,
+        ]
+    }
+}

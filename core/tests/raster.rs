@@ -1,0 +1,315 @@
+//! Rasterizer behaviour: against a naive dense-grid reference, and every odd input case.
+
+use evpose_core::raster::{ConfigError, DropReason, InlineStorage, RasterStats};
+use evpose_core::{Event, Point, Pushed, RasterConfig, Rasterizer, WindowRule};
+use proptest::prelude::*;
+
+type Small = InlineStorage<64, 16, 32>;
+
+fn config(window: WindowRule) -> RasterConfig {
+    RasterConfig {
+        width: 16,
+        height: 8,
+        slices: 4,
+        window,
+    }
+}
+
+/// The reference algorithm, written the obvious way: a dense (K, H, W) grid, f64 slicing,
+/// f32 accumulation in arrival order.
+fn reference(events: &[Event], c: &RasterConfig) -> Vec<Point> {
+    if events.is_empty() {
+        return Vec::new();
+    }
+    let k = usize::from(c.slices);
+    let (w, h) = (usize::from(c.width), usize::from(c.height));
+    let t_min = events.iter().map(|e| e.t).min().unwrap() as f64;
+    let t_max = events.iter().map(|e| e.t).max().unwrap() as f64;
+    let mut grid = vec![(0u32, 0i32, 0f32); k * h * w];
+    for e in events {
+        let (slice, frac) = if t_max > t_min {
+            let tn = (e.t as f64 - t_min) / (t_max - t_min) / 1.001 * k as f64;
+            let s = tn.floor();
+            (s as usize, (tn - s) as f32)
+        } else {
+            (0, 0.0)
+        };
+        let cell = &mut grid[(slice * h + usize::from(e.y)) * w + usize::from(e.x)];
+        cell.0 += 1;
+        cell.1 += if e.on { 1 } else { -1 };
+        cell.2 += frac;
+    }
+    let mut out = Vec::new();
+    for (i, &(cnt, p_acc, f_acc)) in grid.iter().enumerate() {
+        if cnt > 0 {
+            let slice = i / (h * w);
+            out.push(Point {
+                x: (i % w) as u16,
+                y: (i / w % h) as u16,
+                slice: slice as u8,
+                t_avg: (f_acc / cnt as f32) / k as f32 + slice as f32 / k as f32,
+                p_acc,
+                cnt,
+            });
+        }
+    }
+    out
+}
+
+fn events_strategy(max: usize) -> impl Strategy<Value = Vec<Event>> {
+    prop::collection::vec(
+        (0u16..16, 0u16..8, -50i64..1_000, any::<bool>())
+            .prop_map(|(x, y, t, on)| Event::new(x, y, t, on)),
+        1..max,
+    )
+}
+
+fn window_of(r: &mut Rasterizer<Small>, events: &[Event]) -> Vec<Point> {
+    for &e in events {
+        assert!(matches!(r.push(e), Pushed::Buffered));
+    }
+    r.flush().iter().collect()
+}
+
+proptest! {
+    /// Any event set (unordered timestamps, repeated cells, ties) rasterizes like the reference.
+    /// Exact equality: with arrival order kept inside each cell, even the f32 sums match.
+    #[test]
+    fn matches_dense_reference(events in events_strategy(64)) {
+        let c = config(WindowRule::Events(64));
+        let mut r = Rasterizer::new(c, Small::new()).unwrap();
+        prop_assert_eq!(window_of(&mut r, &events), reference(&events, &c));
+    }
+
+    /// Count windows cut the stream into consecutive chunks, each rasterized on its own.
+    #[test]
+    fn count_windows_are_consecutive_chunks(events in events_strategy(200), n in 1u32..40) {
+        let c = config(WindowRule::Events(n));
+        let mut r = Rasterizer::new(c, Small::new()).unwrap();
+        let mut got = Vec::new();
+        for &e in &events {
+            if let Pushed::Window(w) = r.push(e) {
+                got.push(w.iter().collect::<Vec<_>>());
+            }
+        }
+        if r.buffered() > 0 {
+            got.push(r.flush().iter().collect());
+        }
+        let want: Vec<_> = events.chunks(n as usize).map(|ch| reference(ch, &c)).collect();
+        prop_assert_eq!(got, want);
+    }
+}
+
+#[test]
+fn out_of_range_pixels_are_dropped_and_counted() {
+    let mut r = Rasterizer::new(config(WindowRule::Events(4)), Small::new()).unwrap();
+    assert!(matches!(
+        r.push(Event::new(16, 0, 0, true)),
+        Pushed::Dropped(DropReason::OutOfRange)
+    ));
+    assert!(matches!(
+        r.push(Event::new(0, 8, 0, true)),
+        Pushed::Dropped(DropReason::OutOfRange)
+    ));
+    assert!(matches!(
+        r.push(Event::new(15, 7, 0, true)),
+        Pushed::Buffered
+    ));
+    assert_eq!(r.stats().dropped_out_of_range, 2);
+    assert_eq!(r.stats().accepted, 1);
+    assert_eq!(r.buffered(), 1);
+}
+
+#[test]
+fn backwards_timestamps_are_accepted_counted_and_order_free() {
+    let c = config(WindowRule::Events(8));
+    let fwd = [0, 10, 20, 30].map(|t| Event::new(1, 1, t, true));
+    let mut rev = fwd;
+    rev.reverse();
+    let mut r = Rasterizer::new(c, Small::new()).unwrap();
+    let a = window_of(&mut r, &fwd);
+    let b = window_of(&mut r, &rev);
+    assert_eq!(a, b);
+    // The second window starts at 30 after 30 (not backwards); 20, 10 and 0 go backwards.
+    assert_eq!(r.stats().out_of_order, 3);
+}
+
+#[test]
+fn one_timestamp_puts_everything_in_slice_zero() {
+    let c = config(WindowRule::Events(8));
+    let mut r = Rasterizer::new(c, Small::new()).unwrap();
+    let pts = window_of(
+        &mut r,
+        &[
+            Event::new(3, 2, 77, true),
+            Event::new(3, 2, 77, false),
+            Event::new(5, 2, 77, true),
+        ],
+    );
+    assert_eq!(
+        pts,
+        vec![
+            Point {
+                x: 3,
+                y: 2,
+                slice: 0,
+                t_avg: 0.0,
+                p_acc: 0,
+                cnt: 2
+            },
+            Point {
+                x: 5,
+                y: 2,
+                slice: 0,
+                t_avg: 0.0,
+                p_acc: 1,
+                cnt: 1
+            },
+        ]
+    );
+}
+
+#[test]
+fn empty_window_has_no_points() {
+    let mut r = Rasterizer::new(config(WindowRule::Events(8)), Small::new()).unwrap();
+    let w = r.flush();
+    assert!(w.is_empty());
+    assert_eq!(w.summary().events, 0);
+    assert_eq!(r.stats().windows, 1);
+}
+
+#[test]
+fn full_capacity_closes_the_window() {
+    // Duration windows longer than the storage: the 64th event closes the window.
+    let mut r = Rasterizer::new(config(WindowRule::Duration(1_000_000)), Small::new()).unwrap();
+    let mut closed_at = None;
+    for i in 0..100 {
+        if let Pushed::Window(w) = r.push(Event::new(i % 16, 0, i64::from(i), true)) {
+            assert_eq!(w.summary().events, 64);
+            closed_at.get_or_insert(i);
+        }
+    }
+    assert_eq!(closed_at, Some(63));
+    assert_eq!(r.stats().windows_full, 1);
+    assert_eq!(r.stats().accepted, 100);
+    assert_eq!(r.buffered(), 36);
+}
+
+#[test]
+fn duration_window_hands_the_closing_event_to_the_next_window() {
+    let mut r = Rasterizer::new(config(WindowRule::Duration(100)), Small::new()).unwrap();
+    assert!(matches!(
+        r.push(Event::new(0, 0, 1_000, true)),
+        Pushed::Buffered
+    ));
+    assert!(matches!(
+        r.push(Event::new(1, 0, 1_099, true)),
+        Pushed::Buffered
+    ));
+    // Older than the window start: still joins the open window.
+    assert!(matches!(
+        r.push(Event::new(2, 0, 990, false)),
+        Pushed::Buffered
+    ));
+    match r.push(Event::new(3, 0, 1_100, true)) {
+        Pushed::Window(w) => {
+            assert_eq!(w.summary().events, 3);
+            assert_eq!((w.summary().t_min, w.summary().t_max), (990, 1_099));
+        }
+        other => panic!("expected a window, got {other:?}"),
+    }
+    let next: Vec<_> = r.flush().iter().collect();
+    assert_eq!(next.len(), 1);
+    assert_eq!((next[0].x, next[0].t_avg), (3, 0.0));
+    assert_eq!(r.stats().accepted, 4);
+}
+
+#[test]
+fn a_time_jump_beyond_i32_microseconds_starts_a_new_window() {
+    let mut r = Rasterizer::new(config(WindowRule::Events(8)), Small::new()).unwrap();
+    assert!(matches!(
+        r.push(Event::new(0, 0, 0, true)),
+        Pushed::Buffered
+    ));
+    assert!(matches!(
+        r.push(Event::new(1, 0, i64::MIN, true)),
+        Pushed::Window(_)
+    ));
+    assert!(matches!(
+        r.push(Event::new(2, 0, i64::MIN + 5, true)),
+        Pushed::Buffered
+    ));
+    let w: Vec<_> = r.flush().iter().collect();
+    assert_eq!(w.iter().map(|p| p.x).collect::<Vec<_>>(), vec![1, 2]);
+    assert_eq!(r.stats().time_jumps, 1);
+}
+
+#[test]
+fn single_event_windows_with_a_held_event() {
+    // Events(1) with a pending event: each push closes exactly one window.
+    let mut r = Rasterizer::new(config(WindowRule::Events(1)), Small::new()).unwrap();
+    for t in [0, i64::MAX, 0, 5] {
+        assert!(matches!(
+            r.push(Event::new(1, 1, t, true)),
+            Pushed::Window(_)
+        ));
+    }
+    assert_eq!(r.stats().windows, 4);
+}
+
+#[test]
+fn bad_configurations_are_typed_errors() {
+    let err = |c: RasterConfig| Rasterizer::new(c, Small::new()).err();
+    let ok = config(WindowRule::Events(8));
+    assert_eq!(
+        err(RasterConfig { width: 0, ..ok }),
+        Some(ConfigError::Width(0))
+    );
+    assert_eq!(
+        err(RasterConfig { height: 2000, ..ok }),
+        Some(ConfigError::Height(2000))
+    );
+    assert_eq!(
+        err(RasterConfig { slices: 9, ..ok }),
+        Some(ConfigError::Slices(9))
+    );
+    assert_eq!(
+        err(RasterConfig { width: 17, ..ok }),
+        Some(ConfigError::Histogram {
+            needed: 17,
+            available: 16
+        })
+    );
+    assert_eq!(
+        err(RasterConfig { slices: 5, ..ok }),
+        Some(ConfigError::Histogram {
+            needed: 40,
+            available: 32
+        })
+    );
+    assert_eq!(
+        err(config(WindowRule::Events(65))),
+        Some(ConfigError::Capacity {
+            needed: 65,
+            available: 64
+        })
+    );
+    assert_eq!(
+        err(config(WindowRule::Duration(0))),
+        Some(ConfigError::EmptyWindow)
+    );
+}
+
+#[test]
+fn stats_start_at_zero() {
+    let r = Rasterizer::new(config(WindowRule::Events(8)), Small::new()).unwrap();
+    assert_eq!(*r.stats(), RasterStats::default());
+}
+
+#[test]
+fn memory_per_event_is_within_budget() {
+    // 16 bytes per event of capacity (output included) + 4 bytes per histogram bin.
+    let bytes = core::mem::size_of::<evpose_core::Davis346Storage>();
+    assert_eq!(bytes, 16 * 7_500 + 4 * (346 + 1_040));
+    assert!(bytes as f64 / 7_500.0 <= 20.0);
+}

@@ -1,0 +1,7 @@
+//! The `evpose` command-line tool; everything lives in [`evpose_host::cli`].
+
+use clap::Parser;
+
+fn main() -> anyhow::Result<()> {
+    evpose_host::cli::run(evpose_host::cli::Cli::parse())
+}

@@ -1,0 +1,425 @@
+//! The `evpose` command line: argument definitions and one function per command.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Parser, Subcommand};
+use evpose_core::{Pushed, RasterConfig, Rasterizer, WindowRule};
+use serde::Serialize;
+
+use crate::io::{self, Batch, CameraInfo, Format};
+use crate::npy;
+use crate::pipeline::{self, RasterOptions, VecStorage};
+
+/// Human pose from event cameras: rasterization, inference and budgets for MCUs.
+#[derive(Parser, Debug)]
+#[command(name = "evpose", version, about)]
+pub struct Cli {
+    /// The command to run.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// `evpose` commands.
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Describe a recording: format, resolution, event counts, time span.
+    Info(InfoArgs),
+    /// Convert a recording to an (N, 4) float64 `.npy` array [x, y, t_us, p].
+    Convert(ConvertArgs),
+    /// Rasterize events into event point clouds [x, y, t_avg, p_acc, cnt] (float32 .npy).
+    Raster(RasterArgs),
+    /// Measure throughput.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+/// Arguments of `evpose info`.
+#[derive(Args, Debug)]
+pub struct InfoArgs {
+    /// Recording to describe.
+    pub file: PathBuf,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// File format (default: detected from the header).
+    #[arg(long, value_enum)]
+    pub format: Option<Format>,
+}
+
+/// Arguments of `evpose convert`.
+#[derive(Args, Debug)]
+pub struct ConvertArgs {
+    /// Recording to convert.
+    pub file: PathBuf,
+    /// Output `.npy` file.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Camera to export from multi-camera recordings.
+    #[arg(long, default_value_t = 0)]
+    pub camera: u8,
+    /// File format (default: detected from the header).
+    #[arg(long, value_enum)]
+    pub format: Option<Format>,
+}
+
+/// Arguments of `evpose raster`.
+#[derive(Args, Debug)]
+pub struct RasterArgs {
+    /// Recording to rasterize.
+    #[arg(long)]
+    pub events: PathBuf,
+    /// Output `.npy`; with several windows, `OUT-000.npy`, `OUT-001.npy`, …
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Time slices K.
+    #[arg(long, default_value_t = 4)]
+    pub slices: u8,
+    /// Events per window (default: the whole input as one window).
+    #[arg(long)]
+    pub window_events: Option<u32>,
+    /// Sensor width (default: from the file).
+    #[arg(long, requires = "height")]
+    pub width: Option<u16>,
+    /// Sensor height (default: from the file).
+    #[arg(long, requires = "width")]
+    pub height: Option<u16>,
+    /// Camera to rasterize from multi-camera recordings.
+    #[arg(long, default_value_t = 0)]
+    pub camera: u8,
+    /// File format (default: detected from the header).
+    #[arg(long, value_enum)]
+    pub format: Option<Format>,
+}
+
+/// `evpose bench` targets.
+#[derive(Subcommand, Debug)]
+pub enum BenchCommand {
+    /// Rasterization throughput on 7,500-event windows (events per second).
+    Raster(BenchRasterArgs),
+}
+
+/// Arguments of `evpose bench raster`.
+#[derive(Args, Debug)]
+pub struct BenchRasterArgs {
+    /// Events to rasterize, cut into windows (default: the bundled street windows).
+    #[arg(long)]
+    pub events: Option<PathBuf>,
+    /// Events per window.
+    #[arg(long, default_value_t = 7_500)]
+    pub window_events: u32,
+    /// Passes over the events.
+    #[arg(long, default_value_t = 200)]
+    pub iterations: u32,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs a parsed command line.
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Info(a) => info(&a),
+        Command::Convert(a) => convert(&a),
+        Command::Raster(a) => raster(&a),
+        Command::Bench(BenchCommand::Raster(a)) => bench_raster(&a),
+    }
+}
+
+/// Per-camera statistics of a recording.
+#[derive(Clone, Debug, Default, Serialize, PartialEq, Eq)]
+pub struct CameraSummary {
+    /// Camera id.
+    pub camera: u8,
+    /// Sensor width, if the file states it.
+    pub width: Option<u16>,
+    /// Sensor height, if the file states it.
+    pub height: Option<u16>,
+    /// Events of this camera.
+    pub events: u64,
+    /// ON events.
+    pub on: u64,
+    /// OFF events.
+    pub off: u64,
+    /// First timestamp in file order, µs.
+    pub first_t: Option<i64>,
+    /// Last timestamp in file order, µs.
+    pub last_t: Option<i64>,
+    /// `last_t - first_t`, µs.
+    pub duration_us: Option<i64>,
+}
+
+/// What `evpose info` reports.
+#[derive(Clone, Debug, Serialize)]
+pub struct RecordingSummary {
+    /// The file.
+    pub file: String,
+    /// Its format.
+    pub format: Format,
+    /// All events, all cameras.
+    pub events: u64,
+    /// One entry per camera.
+    pub cameras: Vec<CameraSummary>,
+}
+
+/// Streams a recording once and summarizes it.
+pub fn summarize(path: &Path, format: Option<Format>) -> Result<RecordingSummary> {
+    let mut reader = io::open(path, format)?;
+    let info = reader.info().clone();
+    let mut cameras: Vec<CameraSummary> = info.cameras.iter().map(camera_summary).collect();
+    let mut batch = Batch::default();
+    while reader
+        .read_batch(&mut batch)
+        .with_context(|| format!("{}", path.display()))?
+    {
+        for (e, &cam) in batch.events.iter().zip(&batch.cameras) {
+            let s = match cameras.iter_mut().position(|c| c.camera == cam) {
+                Some(i) => &mut cameras[i],
+                None => {
+                    cameras.push(CameraSummary {
+                        camera: cam,
+                        ..CameraSummary::default()
+                    });
+                    cameras.last_mut().expect("just pushed")
+                }
+            };
+            s.events += 1;
+            if e.on {
+                s.on += 1;
+            } else {
+                s.off += 1;
+            }
+            s.first_t.get_or_insert(e.t);
+            s.last_t = Some(e.t);
+        }
+    }
+    for c in &mut cameras {
+        c.duration_us = c.first_t.zip(c.last_t).map(|(a, b)| b - a);
+    }
+    cameras.sort_by_key(|c| c.camera);
+    Ok(RecordingSummary {
+        file: path.display().to_string(),
+        format: info.format,
+        events: cameras.iter().map(|c| c.events).sum(),
+        cameras,
+    })
+}
+
+fn camera_summary(c: &CameraInfo) -> CameraSummary {
+    CameraSummary {
+        camera: c.id,
+        width: c.width,
+        height: c.height,
+        ..CameraSummary::default()
+    }
+}
+
+fn info(a: &InfoArgs) -> Result<()> {
+    let s = summarize(&a.file, a.format)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&s)?);
+        return Ok(());
+    }
+    println!("file:       {}", s.file);
+    println!("format:     {}", s.format.name());
+    println!("events:     {}", s.events);
+    for c in &s.cameras {
+        let size = match (c.width, c.height) {
+            (Some(w), Some(h)) => format!("{w}x{h}"),
+            _ => "unknown".into(),
+        };
+        println!("camera {}:", c.camera);
+        println!("  resolution: {size}");
+        println!("  events:     {} ({} on, {} off)", c.events, c.on, c.off);
+        if let (Some(f), Some(l), Some(d)) = (c.first_t, c.last_t, c.duration_us) {
+            println!("  first t:    {f} us");
+            println!("  last t:     {l} us");
+            println!("  duration:   {:.6} s", d as f64 / 1e6);
+        }
+    }
+    Ok(())
+}
+
+fn convert(a: &ConvertArgs) -> Result<()> {
+    let n = pipeline::count_events(&a.file, a.format, a.camera)?;
+    let mut reader = io::open(&a.file, a.format)?;
+    let file = std::fs::File::create(&a.out)
+        .with_context(|| format!("cannot create {}", a.out.display()))?;
+    use npyz::WriterBuilder;
+    let mut w = npyz::WriteOptions::<f64>::new()
+        .default_dtype()
+        .shape(&[n, 4])
+        .writer(std::io::BufWriter::new(file))
+        .begin_nd()?;
+    let mut batch = Batch::default();
+    let mut written = 0u64;
+    while reader.read_batch(&mut batch)? {
+        for (e, &cam) in batch.events.iter().zip(&batch.cameras) {
+            if cam == a.camera {
+                w.extend([
+                    f64::from(e.x),
+                    f64::from(e.y),
+                    e.t as f64,
+                    f64::from(u8::from(e.on)),
+                ])?;
+                written += 1;
+            }
+        }
+    }
+    if written != n {
+        bail!("{} changed while converting", a.file.display());
+    }
+    w.finish()?;
+    eprintln!("wrote {n} events to {}", a.out.display());
+    Ok(())
+}
+
+/// Output path of window `index` when a run produces `total` windows.
+pub fn window_path(out: &Path, index: usize, several: bool) -> PathBuf {
+    if !several {
+        return out.to_path_buf();
+    }
+    let stem = out.file_stem().unwrap_or_default().to_string_lossy();
+    out.with_file_name(format!("{stem}-{index:03}.npy"))
+}
+
+fn raster(a: &RasterArgs) -> Result<()> {
+    let opts = RasterOptions {
+        format: a.format,
+        size: a.width.zip(a.height),
+        slices: a.slices,
+        window_events: a.window_events,
+        camera: a.camera,
+    };
+    let several = a.window_events.is_some();
+    let mut paths = Vec::new();
+    let report = pipeline::rasterize(&a.events, &opts, |i, w| {
+        let rows = pipeline::window_rows(w);
+        let path = window_path(&a.out, i, several);
+        npy::write(&path, &[rows.len() as u64, 5], rows.as_flattened())?;
+        paths.push(path);
+        Ok(())
+    })?;
+    // One window from a windowed run keeps the plain name, as if no window size were given.
+    if several && paths.len() == 1 {
+        std::fs::rename(&paths[0], &a.out)?;
+        paths[0] = a.out.clone();
+    }
+    let s = report.stats;
+    eprintln!(
+        "{} window(s) from {} events ({}x{}, K={}); dropped {} out of range; wrote {}{}",
+        report.windows,
+        s.accepted,
+        report.size.0,
+        report.size.1,
+        a.slices,
+        s.dropped_out_of_range,
+        paths
+            .first()
+            .map(|p| p.display().to_string())
+            .unwrap_or_default(),
+        if paths.len() > 1 { " …" } else { "" }
+    );
+    Ok(())
+}
+
+/// Result of `evpose bench raster`.
+#[derive(Clone, Debug, Serialize)]
+pub struct RasterBench {
+    /// Events pushed per pass.
+    pub events: u64,
+    /// Windows closed per pass.
+    pub windows: u64,
+    /// Points produced per pass.
+    pub points: u64,
+    /// Passes timed.
+    pub iterations: u32,
+    /// Wall time per pass, seconds.
+    pub seconds_per_pass: f64,
+    /// Throughput.
+    pub events_per_second: f64,
+}
+
+/// Default events for the benchmark: the street windows bundled with the tests.
+pub fn default_bench_events() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/street-00.events.npy")
+}
+
+/// Pushes `events` through a DAVIS346 rasterizer `iterations` times; returns the timing.
+pub fn bench_raster_events(
+    events: &[evpose_core::Event],
+    window_events: u32,
+    iterations: u32,
+) -> Result<RasterBench> {
+    let config = RasterConfig {
+        window: WindowRule::Events(window_events),
+        ..RasterConfig::DAVIS346
+    };
+    let mut r = Rasterizer::new(config, VecStorage::new(window_events as usize, &config))?;
+    let mut run_once = || {
+        let (mut windows, mut points) = (0u64, 0u64);
+        for &e in events {
+            if let Pushed::Window(w) = r.push(e) {
+                windows += 1;
+                points += w.len() as u64;
+            }
+        }
+        if r.buffered() > 0 {
+            points += r.flush().len() as u64;
+            windows += 1;
+        }
+        (windows, points)
+    };
+    let (windows, points) = run_once(); // warm-up
+    let start = Instant::now();
+    for _ in 0..iterations {
+        std::hint::black_box(run_once());
+    }
+    let secs = start.elapsed().as_secs_f64() / f64::from(iterations.max(1));
+    Ok(RasterBench {
+        events: events.len() as u64,
+        windows,
+        points,
+        iterations,
+        seconds_per_pass: secs,
+        events_per_second: events.len() as f64 / secs,
+    })
+}
+
+/// Reads all events of camera 0 of a recording into memory.
+pub fn load_events(path: &Path) -> Result<Vec<evpose_core::Event>> {
+    let mut reader = io::open(path, None)?;
+    let mut batch = Batch::default();
+    let mut events = Vec::new();
+    while reader.read_batch(&mut batch)? {
+        events.extend(
+            batch
+                .events
+                .iter()
+                .zip(&batch.cameras)
+                .filter(|(_, &c)| c == 0)
+                .map(|(e, _)| *e),
+        );
+    }
+    Ok(events)
+}
+
+fn bench_raster(a: &BenchRasterArgs) -> Result<()> {
+    let path = a.events.clone().unwrap_or_else(default_bench_events);
+    let events = load_events(&path)?;
+    let b = bench_raster_events(&events, a.window_events, a.iterations)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&b)?);
+    } else {
+        println!(
+            "raster: {} events, {} windows, {} points per pass; {:.1} us per pass; {:.1} M events/s",
+            b.events,
+            b.windows,
+            b.points,
+            b.seconds_per_pass * 1e6,
+            b.events_per_second / 1e6
+        );
+    }
+    Ok(())
+}
