@@ -11,6 +11,10 @@
 //! | events | [`event`] | the [`Event`] type |
 //! | rasterization | [`raster`] | streaming window → event point cloud `[x, y, t_avg, p_acc, cnt]` |
 //! | sampling | [`sample`] | `M` points → `N` network inputs, seeded and reproducible |
+//! | model | [`model`] | the `.evq` model blob, validated and read in place |
+//! | quantization | [`quant`] | the int8 engine's rounding and requantization, defined once |
+//! | inference | [`infer`] | f32 and int8 PointNet engines, fused per point, fixed scratch |
+//! | kernels | [`kernels`] | matrix-vector kernels: scalar reference and optimized versions |
 //! | decoding | [`simdr`] | SimDR labels and argmax decoding to 2-D joints |
 //!
 //! Bad input never panics: it yields a typed error or a counted drop.
@@ -33,11 +37,17 @@
 #![warn(trivial_numeric_casts, unused_qualifications)]
 
 pub mod event;
+pub mod infer;
+pub mod kernels;
+pub mod model;
+pub mod quant;
 pub mod raster;
 pub mod sample;
 pub mod simdr;
 
 pub use event::Event;
+pub use infer::{run_f32, run_f32_observed, run_i8, scratch_words, InferError, Stage};
+pub use model::{DType, Model, ModelError};
 pub use raster::{
     ConfigError, Davis346Storage, InlineStorage, Point, Pushed, RasterConfig, RasterStats,
     RasterStorage, Rasterizer, Window, WindowRule,

@@ -9,6 +9,8 @@ use evpose_core::{Pushed, RasterConfig, Rasterizer, WindowRule};
 use serde::Serialize;
 
 use crate::io::{self, Batch, CameraInfo, Format};
+
+pub mod inference;
 use crate::npy;
 use crate::pipeline::{self, RasterOptions, VecStorage};
 
@@ -30,6 +32,12 @@ pub enum Command {
     Convert(ConvertArgs),
     /// Rasterize events into event point clouds [x, y, t_avg, p_acc, cnt] (float32 .npy).
     Raster(RasterArgs),
+    /// Run a model on a point cloud: tract, the core's f32 engine or its int8 engine.
+    Infer(inference::InferArgs),
+    /// Calibrate and quantize a float ONNX model to an int8 blob and its ONNX twin.
+    Quantize(inference::QuantizeArgs),
+    /// Check that the core's int8 engine and tract on the quantized ONNX agree exactly.
+    Parity(inference::ParityArgs),
     /// Measure throughput.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -98,6 +106,8 @@ pub struct RasterArgs {
 pub enum BenchCommand {
     /// Rasterization throughput on 7,500-event windows (events per second).
     Raster(BenchRasterArgs),
+    /// Inference latency: tract f32, core f32 and core int8, one thread.
+    Infer(inference::BenchInferArgs),
 }
 
 /// Arguments of `evpose bench raster`.
@@ -124,6 +134,10 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Convert(a) => convert(&a),
         Command::Raster(a) => raster(&a),
         Command::Bench(BenchCommand::Raster(a)) => bench_raster(&a),
+        Command::Bench(BenchCommand::Infer(a)) => inference::bench_infer(&a),
+        Command::Infer(a) => inference::infer(&a),
+        Command::Quantize(a) => inference::quantize(&a),
+        Command::Parity(a) => inference::parity(&a),
     }
 }
 

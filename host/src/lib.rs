@@ -7,5 +7,6 @@
 
 pub mod cli;
 pub mod io;
+pub mod model;
 pub mod npy;
 pub mod pipeline;

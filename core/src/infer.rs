@@ -1,0 +1,351 @@
+//! Inference: the f32 and int8 engines over one [`Model`] description.
+//!
+//! Points are processed one at a time through all point layers, and the last point layer is
+//! reduced on the fly into a running max and a running sum, so activation memory is
+//! O(layer widths), never O(points × widths). The caller lends the scratch memory; the model
+//! says how much it needs ([`scratch_words`]); too little is an error, not a panic.
+//!
+//! The int8 engine's arithmetic is defined in [`crate::quant`]; the heads' int32 accumulators
+//! are the outputs (their argmax is the argmax of the dequantized logits).
+
+use core::fmt;
+
+use crate::kernels;
+use crate::model::{Bias, DType, LayerKind, Model, Weights, FEATURES};
+use crate::quant::{self, InputCoding};
+
+/// Why an inference did not run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum InferError {
+    /// The engine does not match the model's number format.
+    DType,
+    /// No points: pooling is undefined (sampling gives N zero points for an empty window).
+    NoPoints,
+    /// Too little scratch memory.
+    Scratch {
+        /// Words needed.
+        needed: usize,
+        /// Words lent.
+        got: usize,
+    },
+    /// An output buffer has the wrong length.
+    Output {
+        /// Values needed (`J × W` or `J × H`).
+        needed: usize,
+        /// Values lent.
+        got: usize,
+    },
+}
+
+impl fmt::Display for InferError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Self::DType => write!(f, "engine does not match the model's number format"),
+            Self::NoPoints => write!(f, "no input points"),
+            Self::Scratch { needed, got } => {
+                write!(f, "scratch needs {needed} words, got {got}")
+            }
+            Self::Output { needed, got } => {
+                write!(f, "output needs {needed} values, got {got}")
+            }
+        }
+    }
+}
+
+impl core::error::Error for InferError {}
+
+/// 32-bit scratch words an inference with `model` needs (either engine).
+pub fn scratch_words(model: &Model<'_>) -> usize {
+    let pooled = model.pooled_width() as usize;
+    let fc = (2 * pooled).max(model.widest_fc()) + model.widest_fc();
+    let acts = model.point_activation_width();
+    match model.dtype() {
+        // input features | point activations | FC ping-pong | per-layer accumulators
+        DType::F32 => FEATURES + acts + 2 * pooled + fc,
+        // i32 sums | i32 accumulators | bytes: 8 × i16 input, i8 activations, i8 FC ping-pong
+        DType::I8 => {
+            let widest = widest_layer(model);
+            let bytes = 16 + acts + fc;
+            pooled + widest + bytes.div_ceil(4)
+        }
+    }
+}
+
+fn widest_layer(model: &Model<'_>) -> usize {
+    (0..model.layer_count())
+        .map(|i| model.layer(i).desc.out_dim as usize)
+        .max()
+        .unwrap_or(0)
+}
+
+/// Byte offset of each point layer's output in the activation buffer, and the buffer width.
+fn layer_offsets(model: &Model<'_>) -> ([usize; crate::model::MAX_POINT_LAYERS + 1], usize) {
+    let mut offs = [0; crate::model::MAX_POINT_LAYERS + 1];
+    for i in 0..model.point_layer_count() {
+        offs[i + 1] = offs[i] + model.layer(i).desc.out_dim as usize;
+    }
+    (offs, offs[model.point_layer_count()])
+}
+
+/// Range of the activation buffer a point layer reads: its sources, which are contiguous
+/// (checked at import; the input features are handled apart).
+fn source_range(sources: u32, offs: &[usize]) -> core::ops::Range<usize> {
+    let first = sources.trailing_zeros() as usize; // ≥ 1 for layer sources
+    let last = 31 - sources.leading_zeros() as usize;
+    offs[first - 1]..offs[last]
+}
+
+fn check_outputs(model: &Model<'_>, x: usize, y: usize) -> Result<(), InferError> {
+    let (nx, ny) = (
+        model.joints() * model.width(),
+        model.joints() * model.height(),
+    );
+    if x != nx {
+        return Err(InferError::Output { needed: nx, got: x });
+    }
+    if y != ny {
+        return Err(InferError::Output { needed: ny, got: y });
+    }
+    Ok(())
+}
+
+fn check_scratch(model: &Model<'_>, got: usize) -> Result<(), InferError> {
+    let needed = scratch_words(model);
+    if got < needed {
+        return Err(InferError::Scratch { needed, got });
+    }
+    Ok(())
+}
+
+/// An intermediate result of the f32 engine, handed to an observer (calibration).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Stage {
+    /// Point layer `i`'s activations for one point.
+    Point(usize),
+    /// The pooled vector `[max, mean]`.
+    Pooled,
+    /// FC layer `i`'s activations (`i` counts FC layers from 0).
+    Fc(usize),
+}
+
+/// Runs the f32 engine on `points` (rows `[x, y, t_avg, p_acc, cnt]`), writing the x logits
+/// (`J × W`) and y logits (`J × H`).
+pub fn run_f32(
+    model: &Model<'_>,
+    points: &[[f32; FEATURES]],
+    scratch: &mut [f32],
+    out_x: &mut [f32],
+    out_y: &mut [f32],
+) -> Result<(), InferError> {
+    run_f32_observed(model, points, scratch, out_x, out_y, |_, _| {})
+}
+
+/// [`run_f32`], calling `observe` with every intermediate activation vector.
+pub fn run_f32_observed(
+    model: &Model<'_>,
+    points: &[[f32; FEATURES]],
+    scratch: &mut [f32],
+    out_x: &mut [f32],
+    out_y: &mut [f32],
+    mut observe: impl FnMut(Stage, &[f32]),
+) -> Result<(), InferError> {
+    if model.dtype() != DType::F32 {
+        return Err(InferError::DType);
+    }
+    if points.is_empty() {
+        return Err(InferError::NoPoints);
+    }
+    check_outputs(model, out_x.len(), out_y.len())?;
+    check_scratch(model, scratch.len())?;
+    let (offs, acts_len) = layer_offsets(model);
+    let pooled = model.pooled_width() as usize;
+    let last = model.point_layer_count() - 1;
+    let (input, rest) = scratch.split_at_mut(FEATURES);
+    let (acts, rest) = rest.split_at_mut(acts_len);
+    let (max, rest) = rest.split_at_mut(pooled);
+    let (sum, fc) = rest.split_at_mut(pooled);
+    max.fill(f32::NEG_INFINITY);
+    sum.fill(0.0);
+    for p in points {
+        input.copy_from_slice(p);
+        for i in 0..=last {
+            let l = model.layer(i);
+            let (Weights::F32(w), Bias::F32(b)) = (l.weights, l.bias) else {
+                return Err(InferError::DType);
+            };
+            let (before, after) = acts.split_at_mut(offs[i]);
+            let out = &mut after[..l.desc.out_dim as usize];
+            let x: &[f32] = if l.desc.sources == 1 {
+                input
+            } else {
+                &before[source_range(l.desc.sources, &offs)]
+            };
+            kernels::matvec_f32(w, x, b, out);
+            leaky_f32(out, l.desc.leaky);
+            observe(Stage::Point(i), out);
+        }
+        let y = &acts[offs[last]..offs[last + 1]];
+        for ((m, s), &v) in max.iter_mut().zip(sum.iter_mut()).zip(y) {
+            *m = m.max(v);
+            *s += v;
+        }
+    }
+    let (a, b) = fc.split_at_mut((2 * pooled).max(model.widest_fc()));
+    a[..pooled].copy_from_slice(max);
+    let n = points.len() as f32;
+    for (dst, &s) in a[pooled..2 * pooled].iter_mut().zip(sum.iter()) {
+        *dst = s / n;
+    }
+    observe(Stage::Pooled, &a[..2 * pooled]);
+    let mut cur: (&mut [f32], &mut [f32]) = (a, b);
+    let mut width = 2 * pooled;
+    for i in model.fc_range() {
+        let l = model.layer(i);
+        let (Weights::F32(w), Bias::F32(bias)) = (l.weights, l.bias) else {
+            return Err(InferError::DType);
+        };
+        let out = &mut cur.1[..l.desc.out_dim as usize];
+        kernels::matvec_f32(w, &cur.0[..width], bias, out);
+        leaky_f32(out, l.desc.leaky);
+        observe(Stage::Fc(i - model.point_layer_count()), out);
+        width = l.desc.out_dim as usize;
+        cur = (cur.1, cur.0);
+    }
+    let feats = &cur.0[..width];
+    for (kind, out) in [(0, out_x), (1, out_y)] {
+        let l = model.layer(model.head_x_index() + kind);
+        let (Weights::F32(w), Bias::F32(bias)) = (l.weights, l.bias) else {
+            return Err(InferError::DType);
+        };
+        let d = model.head_dim();
+        let o = l.desc.out_dim as usize;
+        for (f, dst) in feats.chunks_exact(d).zip(out.chunks_exact_mut(o)) {
+            kernels::matvec_f32(w, f, bias, dst);
+        }
+    }
+    Ok(())
+}
+
+fn leaky_f32(v: &mut [f32], alpha: Option<f32>) {
+    if let Some(a) = alpha {
+        for x in v {
+            if *x < 0.0 {
+                *x *= a;
+            }
+        }
+    }
+}
+
+/// Runs the int8 engine on `points`, writing the heads' int32 accumulators (bias included):
+/// x (`J × W`) and y (`J × H`).
+pub fn run_i8(
+    model: &Model<'_>,
+    points: &[[f32; FEATURES]],
+    scratch: &mut [i32],
+    out_x: &mut [i32],
+    out_y: &mut [i32],
+) -> Result<(), InferError> {
+    if model.dtype() != DType::I8 {
+        return Err(InferError::DType);
+    }
+    if points.is_empty() {
+        return Err(InferError::NoPoints);
+    }
+    check_outputs(model, out_x.len(), out_y.len())?;
+    check_scratch(model, scratch.len())?;
+    let coding = InputCoding {
+        shifts: model.input_shifts(),
+    };
+    let (offs, acts_len) = layer_offsets(model);
+    let pooled = model.pooled_width() as usize;
+    let last = model.point_layer_count() - 1;
+    let widest = widest_layer(model);
+    let (sum, rest) = scratch.split_at_mut(pooled);
+    let (acc, bytes) = rest.split_at_mut(widest);
+    let bytes: &mut [i8] = bytemuck::cast_slice_mut(bytes);
+    let (input_bytes, bytes) = bytes.split_at_mut(16);
+    let input: &mut [i16] = bytemuck::cast_slice_mut(input_bytes);
+    let input = &mut input[..FEATURES];
+    let (acts, fc) = bytes.split_at_mut(acts_len);
+    let (a, b) = fc.split_at_mut((2 * pooled).max(model.widest_fc()));
+    let (max, _) = a.split_at_mut(pooled);
+    max.fill(i8::MIN);
+    sum.fill(0);
+    for p in points {
+        input.copy_from_slice(&coding.code(p));
+        for i in 0..=last {
+            let l = model.layer(i);
+            let Bias::I32(bias) = l.bias else {
+                return Err(InferError::DType);
+            };
+            let out_dim = l.desc.out_dim as usize;
+            let acc = &mut acc[..out_dim];
+            let (before, after) = acts.split_at_mut(offs[i]);
+            match l.weights {
+                Weights::I16(w) => kernels::matvec_i16(w, input, bias, acc),
+                Weights::I8(w) => {
+                    kernels::matvec_i8(w, &before[source_range(l.desc.sources, &offs)], bias, acc)
+                }
+                Weights::F32(_) => return Err(InferError::DType),
+            }
+            requantize_all(acc, l.scales, l.desc.leaky, &mut after[..out_dim]);
+        }
+        let y = &acts[offs[last]..offs[last + 1]];
+        for ((m, s), &v) in max.iter_mut().zip(sum.iter_mut()).zip(y) {
+            *m = (*m).max(v);
+            *s += i32::from(v);
+        }
+    }
+    let n = points.len() as u32;
+    for (dst, &s) in a[pooled..2 * pooled].iter_mut().zip(sum.iter()) {
+        *dst = quant::average(s, n, model.avg_scale());
+    }
+    let mut cur: (&mut [i8], &mut [i8]) = (a, b);
+    let mut width = 2 * pooled;
+    for i in model.fc_range() {
+        let l = model.layer(i);
+        let (Weights::I8(w), Bias::I32(bias)) = (l.weights, l.bias) else {
+            return Err(InferError::DType);
+        };
+        let out_dim = l.desc.out_dim as usize;
+        let acc = &mut acc[..out_dim];
+        kernels::matvec_i8(w, &cur.0[..width], bias, acc);
+        requantize_all(acc, l.scales, l.desc.leaky, &mut cur.1[..out_dim]);
+        width = out_dim;
+        cur = (cur.1, cur.0);
+    }
+    let feats = &cur.0[..width];
+    for (kind, out) in [(0, out_x), (1, out_y)] {
+        let l = model.layer(model.head_x_index() + kind);
+        let (Weights::I8(w), Bias::I32(bias)) = (l.weights, l.bias) else {
+            return Err(InferError::DType);
+        };
+        let o = l.desc.out_dim as usize;
+        for (f, dst) in feats
+            .chunks_exact(model.head_dim())
+            .zip(out.chunks_exact_mut(o))
+        {
+            kernels::matvec_i8(w, f, bias, dst);
+        }
+    }
+    Ok(())
+}
+
+fn requantize_all(acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut [i8]) {
+    for ((o, &a), &s) in out.iter_mut().zip(acc).zip(scales) {
+        *o = quant::requantize(a, s, leaky);
+    }
+}
+
+/// Which kind of layer reads the pooled features (for reports).
+pub fn describe(kind: LayerKind) -> &'static str {
+    match kind {
+        LayerKind::Point => "point",
+        LayerKind::Fc => "fc",
+        LayerKind::HeadX => "head_x",
+        LayerKind::HeadY => "head_y",
+    }
+}

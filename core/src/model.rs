@@ -1,0 +1,624 @@
+//! The model blob (`.evq`): a PointNet-SimDR network read in place from `&[u8]` (flash on an MCU).
+//!
+//! # The network family
+//! Per point: a DAG of 1×1 layers, each reading the concatenation of the input features and/or
+//! earlier layers' outputs (the paper: conv1 → conv2 → conv3 → conv4, conv5 on their
+//! concatenation); the last point layer is pooled over all points by max and by mean,
+//! concatenated `[max, mean]`; then a chain of fully connected layers; the last one's output is
+//! read as `J × D`, and two heads shared by all joints map each `D`-vector to `W` x-logits and `H`
+//! y-logits.
+//!
+//! # Layout (little-endian)
+//! ```text
+//! 0   magic "EVPQ"          4   version u16         6   dtype u8 (0 f32, 1 int8)   7 reserved
+//! 8   total length u32      12  CRC-32 (ISO-HDLC) of bytes 16..total
+//! 16  layer count u16       18  point layers u16    20  joints u16   22 width u16  24 height u16
+//! 26  head dim u16          28  input shifts [u8; 5] + 3 reserved
+//! 36  average-pool constant f32 (int8)             40  table offset u32   44  data offset u32
+//! 48  reserved (16 bytes)
+//! 64  layer table: one 32-byte entry per layer, in order: point layers, FC layers, head x, head y
+//!     0 kind u8 (0 point, 1 fc, 2 head x, 3 head y)   1 flags u8 (bit 0 LeakyReLU)
+//!     2 weight type u8 (0 f32, 1 i8, 2 i16)           3 reserved
+//!     4 in dim u32   8 out dim u32   12 sources u32 (point layers: bit 0 = input features,
+//!       bit i = point layer i − 1)   16 weights offset   20 bias offset   24 scales offset
+//!       (0: none)   28 LeakyReLU alpha f32
+//! data: arrays at 16-byte-aligned offsets: weights `[out][in]`, bias `[out]` (f32 or i32),
+//!       scales `[out]` f32 (int8 requantization multipliers)
+//! ```
+//! [`Model::parse`] checks the magic, version, checksum, every offset, size and alignment, and
+//! that the dimensions chain; after that, reading the model cannot fail.
+
+use core::fmt;
+
+use bytemuck::Pod;
+
+/// First bytes of a blob.
+pub const MAGIC: [u8; 4] = *b"EVPQ";
+/// Format version this crate reads and writes.
+pub const VERSION: u16 = 1;
+/// Size of the fixed header.
+pub const HEADER_LEN: usize = 64;
+/// Size of one layer-table entry.
+pub const ENTRY_LEN: usize = 32;
+/// Alignment of every array in the data section.
+pub const ALIGN: usize = 16;
+/// Most layers a blob may hold.
+pub const MAX_LAYERS: usize = 32;
+/// Most point layers (the sources bitmask has 32 bits, bit 0 is the input).
+pub const MAX_POINT_LAYERS: usize = 16;
+/// Point features per point: `[x, y, t_avg, p_acc, cnt]`.
+pub const FEATURES: usize = 5;
+
+/// The CRC used for the checksum.
+pub const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// Number format of a blob.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DType {
+    /// f32 weights and arithmetic (the float reference path).
+    F32 = 0,
+    /// int8 weights and activations, int32 accumulators.
+    I8 = 1,
+}
+
+/// Role of a layer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LayerKind {
+    /// A 1×1 layer applied to every point.
+    Point = 0,
+    /// A fully connected layer after pooling.
+    Fc = 1,
+    /// The x head (`D → W`, shared by all joints).
+    HeadX = 2,
+    /// The y head (`D → H`).
+    HeadY = 3,
+}
+
+/// Element type of a weight array.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum WeightType {
+    /// f32.
+    F32 = 0,
+    /// i8.
+    I8 = 1,
+    /// i16 (the int8 model's first layer).
+    I16 = 2,
+}
+
+impl WeightType {
+    /// Bytes per element.
+    pub const fn size(self) -> usize {
+        match self {
+            Self::F32 => 4,
+            Self::I8 => 1,
+            Self::I16 => 2,
+        }
+    }
+}
+
+/// A blob the core refuses, with what is wrong.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[non_exhaustive]
+pub enum ModelError {
+    /// Shorter than its header or its stated length.
+    Truncated {
+        /// Bytes needed.
+        needed: usize,
+        /// Bytes present.
+        got: usize,
+    },
+    /// Not an evpose model.
+    BadMagic,
+    /// A format version this build does not read.
+    Version(u16),
+    /// The checksum does not match: the blob is corrupt.
+    Checksum {
+        /// CRC stored in the header.
+        stored: u32,
+        /// CRC of the bytes.
+        computed: u32,
+    },
+    /// The blob does not start at a 16-byte-aligned address (weights are read in place).
+    Misaligned,
+    /// A header field is invalid.
+    Header(&'static str),
+    /// Layer `index` is invalid.
+    Layer {
+        /// Index in the layer table.
+        index: u8,
+        /// What is wrong.
+        reason: &'static str,
+    },
+}
+
+impl fmt::Display for ModelError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Self::Truncated { needed, got } => {
+                write!(f, "model blob truncated: needs {needed} bytes, has {got}")
+            }
+            Self::BadMagic => write!(f, "not an evpose model blob (bad magic)"),
+            Self::Version(v) => write!(f, "model blob version {v}, this build reads {VERSION}"),
+            Self::Checksum { stored, computed } => write!(
+                f,
+                "model blob corrupt: checksum {computed:08x}, header says {stored:08x}"
+            ),
+            Self::Misaligned => write!(f, "model blob must start at a 16-byte-aligned address"),
+            Self::Header(what) => write!(f, "model blob header: {what}"),
+            Self::Layer { index, reason } => write!(f, "model blob layer {index}: {reason}"),
+        }
+    }
+}
+
+impl core::error::Error for ModelError {}
+
+/// A validated layer-table entry.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LayerDesc {
+    /// Role.
+    pub kind: LayerKind,
+    /// Input width.
+    pub in_dim: u32,
+    /// Output width.
+    pub out_dim: u32,
+    /// Point layers: bit 0 = input features, bit `i` = point layer `i − 1`.
+    pub sources: u32,
+    /// LeakyReLU slope, when the layer has one.
+    pub leaky: Option<f32>,
+    /// Weight element type.
+    pub weight_type: WeightType,
+    weights: u32,
+    bias: u32,
+    scales: u32,
+}
+
+/// Weights of one layer, `[out][in]`, borrowed from the blob.
+#[derive(Clone, Copy, Debug)]
+pub enum Weights<'a> {
+    /// f32 weights.
+    F32(&'a [f32]),
+    /// i8 weights.
+    I8(&'a [i8]),
+    /// i16 weights.
+    I16(&'a [i16]),
+}
+
+/// Bias of one layer, borrowed from the blob.
+#[derive(Clone, Copy, Debug)]
+pub enum Bias<'a> {
+    /// f32 bias (f32 models).
+    F32(&'a [f32]),
+    /// i32 bias in accumulator units (int8 models).
+    I32(&'a [i32]),
+}
+
+/// One layer's parameters, borrowed from the blob.
+#[derive(Clone, Copy, Debug)]
+pub struct Layer<'a> {
+    /// The table entry.
+    pub desc: LayerDesc,
+    /// `[out][in]` weights.
+    pub weights: Weights<'a>,
+    /// `[out]` bias.
+    pub bias: Bias<'a>,
+    /// `[out]` requantization multipliers (int8 point and FC layers), else empty.
+    pub scales: &'a [f32],
+}
+
+/// A validated model blob.
+#[derive(Clone, Copy, Debug)]
+pub struct Model<'a> {
+    blob: &'a [u8],
+    dtype: DType,
+    layers: [Option<LayerDesc>; MAX_LAYERS],
+    layer_count: usize,
+    point_layers: usize,
+    joints: u16,
+    width: u16,
+    height: u16,
+    head_dim: u16,
+    input_shifts: [u8; FEATURES],
+    avg_scale: f32,
+}
+
+fn u16_at(b: &[u8], o: usize) -> u16 {
+    u16::from_le_bytes([b[o], b[o + 1]])
+}
+
+fn u32_at(b: &[u8], o: usize) -> u32 {
+    u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]])
+}
+
+impl<'a> Model<'a> {
+    /// Validates a blob. The blob must start at a 16-byte-aligned address.
+    pub fn parse(blob: &'a [u8]) -> Result<Self, ModelError> {
+        if blob.len() < HEADER_LEN {
+            return Err(ModelError::Truncated {
+                needed: HEADER_LEN,
+                got: blob.len(),
+            });
+        }
+        if blob[..4] != MAGIC {
+            return Err(ModelError::BadMagic);
+        }
+        let version = u16_at(blob, 4);
+        if version != VERSION {
+            return Err(ModelError::Version(version));
+        }
+        let total = u32_at(blob, 8) as usize;
+        if blob.len() < total {
+            return Err(ModelError::Truncated {
+                needed: total,
+                got: blob.len(),
+            });
+        }
+        if total < HEADER_LEN {
+            return Err(ModelError::Header("total length below the header size"));
+        }
+        let blob = &blob[..total];
+        let stored = u32_at(blob, 12);
+        let computed = CRC.checksum(&blob[16..]);
+        if stored != computed {
+            return Err(ModelError::Checksum { stored, computed });
+        }
+        if blob.as_ptr() as usize % ALIGN != 0 {
+            return Err(ModelError::Misaligned);
+        }
+        if blob[7] != 0 {
+            return Err(ModelError::Header("reserved byte 7 must be zero"));
+        }
+        let dtype = match blob[6] {
+            0 => DType::F32,
+            1 => DType::I8,
+            _ => return Err(ModelError::Header("unknown dtype")),
+        };
+        let mut shifts = [0u8; FEATURES];
+        shifts.copy_from_slice(&blob[28..28 + FEATURES]);
+        if shifts.iter().any(|&s| s > 15) {
+            return Err(ModelError::Header("input shift above 15"));
+        }
+        let mut m = Self {
+            blob,
+            dtype,
+            layers: [None; MAX_LAYERS],
+            layer_count: usize::from(u16_at(blob, 16)),
+            point_layers: usize::from(u16_at(blob, 18)),
+            joints: u16_at(blob, 20),
+            width: u16_at(blob, 22),
+            height: u16_at(blob, 24),
+            head_dim: u16_at(blob, 26),
+            input_shifts: shifts,
+            avg_scale: f32::from_bits(u32_at(blob, 36)),
+        };
+        m.check_header()?;
+        let table = u32_at(blob, 40) as usize;
+        let table_end = table + m.layer_count * ENTRY_LEN;
+        if table < HEADER_LEN || table_end > total {
+            return Err(ModelError::Header("layer table outside the blob"));
+        }
+        for i in 0..m.layer_count {
+            let desc = m.parse_entry(i, &blob[table + i * ENTRY_LEN..][..ENTRY_LEN])?;
+            m.layers[i] = Some(desc);
+        }
+        m.check_chain()?;
+        Ok(m)
+    }
+
+    fn check_header(&self) -> Result<(), ModelError> {
+        if self.layer_count > MAX_LAYERS || self.layer_count < self.point_layers + 3 {
+            return Err(ModelError::Header(
+                "layer count must cover the point layers, one FC layer and two heads",
+            ));
+        }
+        if self.point_layers == 0 || self.point_layers > MAX_POINT_LAYERS {
+            return Err(ModelError::Header("point layer count outside 1..=16"));
+        }
+        if self.joints == 0 || self.width == 0 || self.height == 0 || self.head_dim == 0 {
+            return Err(ModelError::Header(
+                "joints, width, height and head dim must be non-zero",
+            ));
+        }
+        if self.dtype == DType::I8 && !(self.avg_scale.is_finite() && self.avg_scale > 0.0) {
+            return Err(ModelError::Header("average-pool constant must be positive"));
+        }
+        Ok(())
+    }
+
+    fn parse_entry(&self, i: usize, e: &[u8]) -> Result<LayerDesc, ModelError> {
+        let err = |reason| ModelError::Layer {
+            index: i as u8,
+            reason,
+        };
+        let kind = match e[0] {
+            0 => LayerKind::Point,
+            1 => LayerKind::Fc,
+            2 => LayerKind::HeadX,
+            3 => LayerKind::HeadY,
+            _ => return Err(err("unknown layer kind")),
+        };
+        let expected_kind = if i < self.point_layers {
+            LayerKind::Point
+        } else if i + 2 < self.layer_count {
+            LayerKind::Fc
+        } else if i + 2 == self.layer_count {
+            LayerKind::HeadX
+        } else {
+            LayerKind::HeadY
+        };
+        if kind != expected_kind {
+            return Err(err("layers must be ordered: point, FC, head x, head y"));
+        }
+        let weight_type = match e[2] {
+            0 => WeightType::F32,
+            1 => WeightType::I8,
+            2 => WeightType::I16,
+            _ => return Err(err("unknown weight type")),
+        };
+        let allowed = match (self.dtype, kind) {
+            (DType::F32, _) => weight_type == WeightType::F32,
+            (DType::I8, LayerKind::Point) => weight_type != WeightType::F32,
+            (DType::I8, _) => weight_type == WeightType::I8,
+        };
+        if !allowed {
+            return Err(err("weight type does not fit the model's dtype"));
+        }
+        let alpha = f32::from_bits(u32_at(e, 28));
+        let leaky = match e[1] & 1 {
+            1 if alpha.is_finite() => Some(alpha),
+            1 => return Err(err("LeakyReLU slope is not finite")),
+            _ => None,
+        };
+        let d = LayerDesc {
+            kind,
+            in_dim: u32_at(e, 4),
+            out_dim: u32_at(e, 8),
+            sources: u32_at(e, 12),
+            leaky,
+            weight_type,
+            weights: u32_at(e, 16),
+            bias: u32_at(e, 20),
+            scales: u32_at(e, 24),
+        };
+        if d.in_dim == 0 || d.out_dim == 0 || d.in_dim > 1 << 16 || d.out_dim > 1 << 16 {
+            return Err(err("dimensions must be in 1..=65536"));
+        }
+        let n_w = d.in_dim as usize * d.out_dim as usize;
+        self.check_array(d.weights, n_w * weight_type.size(), i)?;
+        self.check_array(d.bias, d.out_dim as usize * 4, i)?;
+        let wants_scales =
+            self.dtype == DType::I8 && matches!(kind, LayerKind::Point | LayerKind::Fc);
+        match (wants_scales, d.scales) {
+            (true, 0) => return Err(err("int8 layer without requantization scales")),
+            (true, off) => self.check_array(off, d.out_dim as usize * 4, i)?,
+            (false, 0) => {}
+            (false, _) => return Err(err("scales on a layer that takes none")),
+        }
+        if kind == LayerKind::Point {
+            self.check_sources(&d, i)?;
+            if weight_type == WeightType::I16 && d.sources != 1 {
+                return Err(err(
+                    "i16 weights only on layers reading the input features alone",
+                ));
+            }
+        } else if d.sources != 0 {
+            return Err(err("only point layers have sources"));
+        }
+        Ok(d)
+    }
+
+    fn check_array(&self, offset: u32, bytes: usize, i: usize) -> Result<(), ModelError> {
+        let o = offset as usize;
+        let ok = o % ALIGN == 0
+            && o >= HEADER_LEN
+            && o.checked_add(bytes)
+                .is_some_and(|end| end <= self.blob.len());
+        if ok {
+            Ok(())
+        } else {
+            Err(ModelError::Layer {
+                index: i as u8,
+                reason: "array outside the blob or misaligned",
+            })
+        }
+    }
+
+    fn check_sources(&self, d: &LayerDesc, i: usize) -> Result<(), ModelError> {
+        let err = |reason| ModelError::Layer {
+            index: i as u8,
+            reason,
+        };
+        // Only the input (bit 0) and earlier layers (bits 1..=i).
+        if d.sources == 0 || d.sources >> (i + 1) != 0 {
+            return Err(err("sources must name the input or earlier point layers"));
+        }
+        // The engines read sources in place: one contiguous run of layers, or the input alone.
+        let run = d.sources >> d.sources.trailing_zeros();
+        if run & (run + 1) != 0 || (d.sources & 1 == 1 && d.sources != 1) {
+            return Err(err(
+                "sources must be the input alone or a contiguous run of layers",
+            ));
+        }
+        let mut width = 0u32;
+        for bit in 0..=i {
+            if d.sources >> bit & 1 == 1 {
+                width += if bit == 0 {
+                    FEATURES as u32
+                } else {
+                    self.layers[bit - 1].map_or(0, |l| l.out_dim)
+                };
+            }
+        }
+        if width != d.in_dim {
+            return Err(err("input width is not the sum of its sources' widths"));
+        }
+        Ok(())
+    }
+
+    fn check_chain(&self) -> Result<(), ModelError> {
+        let mut prev = 2 * self.pooled_width();
+        for i in self.point_layers..self.layer_count - 2 {
+            let l = self.desc(i);
+            if l.in_dim != prev {
+                return Err(ModelError::Layer {
+                    index: i as u8,
+                    reason: "input width does not match the previous layer",
+                });
+            }
+            prev = l.out_dim;
+        }
+        if prev != u32::from(self.joints) * u32::from(self.head_dim) {
+            return Err(ModelError::Header(
+                "last FC layer width is not joints × head dim",
+            ));
+        }
+        let (hx, hy) = (
+            self.desc(self.layer_count - 2),
+            self.desc(self.layer_count - 1),
+        );
+        let d = u32::from(self.head_dim);
+        if hx.in_dim != d
+            || hy.in_dim != d
+            || hx.out_dim != u32::from(self.width)
+            || hy.out_dim != u32::from(self.height)
+        {
+            return Err(ModelError::Header(
+                "heads must map head dim to width and height",
+            ));
+        }
+        Ok(())
+    }
+
+    fn desc(&self, i: usize) -> LayerDesc {
+        // Every index below layer_count was filled by parse().
+        self.layers[i].unwrap_or(LayerDesc {
+            kind: LayerKind::Point,
+            in_dim: 0,
+            out_dim: 0,
+            sources: 0,
+            leaky: None,
+            weight_type: WeightType::F32,
+            weights: 0,
+            bias: 0,
+            scales: 0,
+        })
+    }
+
+    fn array<T: Pod>(&self, offset: u32, len: usize) -> &'a [T] {
+        let bytes = &self.blob[offset as usize..][..len * size_of::<T>()];
+        // Offsets are 16-byte aligned within a 16-byte-aligned blob (checked in parse).
+        bytemuck::try_cast_slice(bytes).unwrap_or(&[])
+    }
+
+    /// Layer `i` of the table with its arrays.
+    pub fn layer(&self, i: usize) -> Layer<'a> {
+        let d = self.desc(i);
+        let n = d.in_dim as usize * d.out_dim as usize;
+        let out = d.out_dim as usize;
+        let weights = match d.weight_type {
+            WeightType::F32 => Weights::F32(self.array(d.weights, n)),
+            WeightType::I8 => Weights::I8(self.array(d.weights, n)),
+            WeightType::I16 => Weights::I16(self.array(d.weights, n)),
+        };
+        let bias = match self.dtype {
+            DType::F32 => Bias::F32(self.array(d.bias, out)),
+            DType::I8 => Bias::I32(self.array(d.bias, out)),
+        };
+        let scales = if d.scales == 0 {
+            &[][..]
+        } else {
+            self.array(d.scales, out)
+        };
+        Layer {
+            desc: d,
+            weights,
+            bias,
+            scales,
+        }
+    }
+
+    /// Number format.
+    pub fn dtype(&self) -> DType {
+        self.dtype
+    }
+    /// Joints `J`.
+    pub fn joints(&self) -> usize {
+        usize::from(self.joints)
+    }
+    /// Width `W` of the x logits.
+    pub fn width(&self) -> usize {
+        usize::from(self.width)
+    }
+    /// Height `H` of the y logits.
+    pub fn height(&self) -> usize {
+        usize::from(self.height)
+    }
+    /// Per-joint feature width `D` read by the heads.
+    pub fn head_dim(&self) -> usize {
+        usize::from(self.head_dim)
+    }
+    /// Number of point layers.
+    pub fn point_layer_count(&self) -> usize {
+        self.point_layers
+    }
+    /// Number of layers (point, FC, heads).
+    pub fn layer_count(&self) -> usize {
+        self.layer_count
+    }
+    /// Indices of the FC layers.
+    pub fn fc_range(&self) -> core::ops::Range<usize> {
+        self.point_layers..self.layer_count - 2
+    }
+    /// Index of the x head (the y head follows).
+    pub fn head_x_index(&self) -> usize {
+        self.layer_count - 2
+    }
+    /// Width of the pooled (last) point layer.
+    pub fn pooled_width(&self) -> u32 {
+        self.desc(self.point_layers - 1).out_dim
+    }
+    /// int8 input coding exponents per feature.
+    pub fn input_shifts(&self) -> [u8; FEATURES] {
+        self.input_shifts
+    }
+    /// int8 average-pool constant `c` (see [`crate::quant::average`]).
+    pub fn avg_scale(&self) -> f32 {
+        self.avg_scale
+    }
+    /// Sum of the point layers' output widths (one point's activations).
+    pub fn point_activation_width(&self) -> usize {
+        (0..self.point_layers)
+            .map(|i| self.desc(i).out_dim as usize)
+            .sum()
+    }
+    /// Multiply-accumulates per point (the point layers).
+    pub fn macs_per_point(&self) -> u64 {
+        (0..self.point_layers).map(|i| self.macs(i)).sum()
+    }
+    /// Multiply-accumulates after pooling (FC layers and heads, all joints).
+    pub fn macs_after_pooling(&self) -> u64 {
+        let fc: u64 = self.fc_range().map(|i| self.macs(i)).sum();
+        let heads = self.macs(self.head_x_index()) + self.macs(self.head_x_index() + 1);
+        fc + heads * u64::from(self.joints)
+    }
+    /// Multiply-accumulates of layer `i` for one input vector.
+    pub fn macs(&self, i: usize) -> u64 {
+        let d = self.desc(i);
+        u64::from(d.in_dim) * u64::from(d.out_dim)
+    }
+    /// Largest FC output width (scratch sizing).
+    pub fn widest_fc(&self) -> usize {
+        self.fc_range()
+            .map(|i| self.desc(i).out_dim as usize)
+            .max()
+            .unwrap_or(0)
+    }
+    /// The blob's bytes.
+    pub fn bytes(&self) -> &'a [u8] {
+        self.blob
+    }
+}

@@ -1,0 +1,185 @@
+//! Integer arithmetic of the int8 engine, defined once.
+//!
+//! Every requantization in the int8 network is the same four IEEE-754 steps, chosen because an
+//! independent ONNX engine computes them bit for bit (`shared/docs/quantization-notes.md`):
+//!
+//! ```text
+//! v = f32(acc_i32)            int → float, round to nearest even (exact below 2^24)
+//! v = v × scale_f32           one f32 multiply
+//! v = v < 0 ? v × alpha : v   LeakyReLU in f32, before the single rounding (alpha = f32(0.01))
+//! q = sat_i8(round_half_even(v))
+//! ```
+//!
+//! In ONNX: `Cast(to=float) → Mul(scale) → LeakyRelu(alpha) → QuantizeLinear(scale=1, zp=0)`.
+//! A scale of exactly 1 makes `QuantizeLinear` a plain round-half-even-and-saturate in every
+//! engine (no reciprocal, no division).
+//!
+//! The first layer takes the point features as small integers instead of int8 (x and y reach
+//! 345): [`InputCoding`] turns `[x, y, t_avg, p_acc, cnt]` into integers with per-feature
+//! power-of-two scales, so the coding is exact, and the first layer's weights are kept within
+//! ±1023 so that every partial sum stays below 2^24: exact in f32 in any order, hence equal to
+//! the integer sum.
+
+/// LeakyReLU slope of the paper's network, as the f32 that PyTorch exports.
+pub const LEAKY_ALPHA: f32 = 0.01;
+
+/// Rounds half to even. Exact for `|v| < 2^22`; callers clamp first.
+///
+/// Adding and subtracting 1.5 × 2^23 leaves the integer part in the mantissa, rounded by the
+/// FPU's default mode (nearest, ties to even); no libm, no branches.
+#[inline(always)]
+pub fn round_half_even(v: f32) -> f32 {
+    const MAGIC: f32 = 12_582_912.0; // 1.5 × 2^23
+    (v + MAGIC) - MAGIC
+}
+
+/// Saturates to `[lo, hi]` and rounds half to even.
+#[inline(always)]
+pub fn round_clamp(v: f32, lo: f32, hi: f32) -> f32 {
+    // Clamping first keeps the magic-number rounding in its exact range; values beyond the
+    // bounds saturate either way. NaN cannot occur (finite integers times finite scales).
+    round_half_even(v.clamp(lo - 1.0, hi + 1.0)).clamp(lo, hi)
+}
+
+/// Requantizes one int32 accumulator (bias included) to int8 with an optional LeakyReLU.
+#[inline(always)]
+pub fn requantize(acc: i32, scale: f32, leaky: Option<f32>) -> i8 {
+    let mut v = acc as f32 * scale;
+    if let Some(alpha) = leaky {
+        if v < 0.0 {
+            v *= alpha;
+        }
+    }
+    round_clamp(v, -128.0, 127.0) as i8
+}
+
+/// Average pooling's single scaled rounding: `sat_i8(round(f32(sum) × (c / f32(n))))`.
+///
+/// `c` folds the input and output scales; the division by the point count is one IEEE division,
+/// so a dynamic point count needs no precomputed table.
+#[inline]
+pub fn average(sum: i32, n: u32, c: f32) -> i8 {
+    let m = c / n as f32;
+    round_clamp(sum as f32 * m, -128.0, 127.0) as i8
+}
+
+/// Largest magnitude of a first-layer integer input.
+pub const INPUT_LIMIT: i16 = 2047;
+/// Largest magnitude of a first-layer weight: `5 × 2048 × 1023 + bias < 2^24`.
+pub const FIRST_WEIGHT_LIMIT: i16 = 1023;
+/// Largest magnitude of a first-layer bias, so that the sum stays below 2^24.
+pub const FIRST_BIAS_LIMIT: i32 = (1 << 24) - 5 * 2048 * 1023 - 1;
+
+/// Integer coding of the five point features for the first layer: `q = round(f × 2^shift)`,
+/// saturated to `±INPUT_LIMIT`. Multiplying by a power of two is exact in f32, so the only
+/// rounding is the final round-half-even; in ONNX: `Mul`, `Round` (half to even), `Clip`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct InputCoding {
+    /// Power-of-two exponent per feature `[x, y, t_avg, p_acc, cnt]`.
+    pub shifts: [u8; 5],
+}
+
+impl InputCoding {
+    /// The coding the quantizer uses: pixels and counts as they are, `t_avg` in units of 1/1024.
+    pub const DEFAULT: Self = Self {
+        shifts: [0, 0, 10, 0, 0],
+    };
+
+    /// Scale of feature `i`: `2^shift`.
+    pub fn factor(&self, i: usize) -> f32 {
+        (1u32 << self.shifts[i]) as f32
+    }
+
+    /// Codes one point.
+    pub fn code(&self, features: &[f32; 5]) -> [i16; 5] {
+        let lim = f32::from(INPUT_LIMIT);
+        core::array::from_fn(|i| round_clamp(features[i] * self.factor(i), -lim, lim) as i16)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rounds_ties_to_even() {
+        for (v, want) in [
+            (0.5f32, 0.0f32),
+            (1.5, 2.0),
+            (2.5, 2.0),
+            (-0.5, -0.0),
+            (-1.5, -2.0),
+            (-2.5, -2.0),
+            (2.4999998, 2.0),
+            (2.5000002, 3.0),
+            (126.5, 126.0),
+            (127.5, 128.0),
+        ] {
+            assert_eq!(round_half_even(v), want, "{v}");
+        }
+    }
+
+    #[test]
+    fn matches_std_on_a_dense_grid() {
+        // Every quarter step in ±300 and a sweep of odd fractions.
+        let mut v = -300.0f32;
+        while v <= 300.0 {
+            assert_eq!(round_half_even(v), v.round_ties_even(), "{v}");
+            v += 0.25;
+        }
+        for i in -100_000..100_000 {
+            let v = i as f32 * 0.001_3;
+            assert_eq!(round_half_even(v), v.round_ties_even(), "{v}");
+        }
+    }
+
+    #[test]
+    fn requantize_saturates_and_applies_leaky_relu() {
+        assert_eq!(requantize(1_000, 1.0, None), 127);
+        assert_eq!(requantize(-1_000, 1.0, None), -128);
+        assert_eq!(requantize(i32::MAX, 1.0, None), 127);
+        assert_eq!(requantize(i32::MIN, 1.0, None), -128);
+        // -250 × 0.01 = -2.5 → ties to even → -2.
+        assert_eq!(requantize(-250, 1.0, Some(LEAKY_ALPHA)), -2);
+        assert_eq!(requantize(-350, 1.0, Some(LEAKY_ALPHA)), -4); // -3.5 → -4
+        assert_eq!(requantize(5, 0.5, Some(LEAKY_ALPHA)), 2); // 2.5 → 2
+        assert_eq!(requantize(7, 0.5, None), 4); // 3.5 → 4
+    }
+
+    #[test]
+    fn every_int8_product_rounds_like_the_spec() {
+        // Exhaustive over accumulators -2^15..2^15 at an awkward scale, against an f64 model
+        // of the same IEEE steps.
+        let scale = 0.003_137_254_9f32;
+        for acc in -(1 << 15)..(1 << 15) {
+            let v = acc as f32 * scale;
+            let v = if v < 0.0 { v * LEAKY_ALPHA } else { v };
+            let want = v.round_ties_even().clamp(-128.0, 127.0) as i8;
+            assert_eq!(requantize(acc, scale, Some(LEAKY_ALPHA)), want, "acc {acc}");
+        }
+    }
+
+    #[test]
+    fn average_is_one_scaled_rounding() {
+        assert_eq!(average(300, 4, 1.0), 75);
+        assert_eq!(average(10, 4, 1.0), 2); // 2.5 → 2
+        assert_eq!(average(14, 4, 1.0), 4); // 3.5 → 4
+        assert_eq!(average(-1_000_000, 3, 1.0), -128);
+    }
+
+    #[test]
+    fn input_coding_is_exact_and_saturates() {
+        let c = InputCoding::DEFAULT;
+        assert_eq!(
+            c.code(&[345.0, 259.0, 0.5, -3.0, 9.0]),
+            [345, 259, 512, -3, 9]
+        );
+        assert_eq!(
+            c.code(&[0.0, 0.0, 0.999_999, 5_000.0, 9_000.0]),
+            [0, 0, 1024, 2047, 2047]
+        );
+        // t = 0.00048828125 × 1024 = 0.5 → ties to even → 0.
+        assert_eq!(c.code(&[0.0, 0.0, 0.000_488_281_25, 0.0, 0.0])[2], 0);
+    }
+}

@@ -1,0 +1,309 @@
+//! Post-training int8 quantization and its ONNX twin.
+//!
+//! Calibration runs the core's f32 engine over sampled event windows and records each layer's
+//! largest activation. Scales are symmetric (zero point 0):
+//! - activations: one scale per layer output, `max|y| / 127`;
+//! - weights: one scale per output channel, after folding the input's per-channel scales into
+//!   the weights (a layer reading a concatenation of layers with different scales, or the pooled
+//!   `[max, mean]`, sees one int8 tensor with per-channel units);
+//! - the first layer reads the integer-coded features (`x, y, p_acc, cnt` as is, `t_avg · 1024`)
+//!   with i16 weights bounded by ±1023 so that it is exact in f32 (see `evpose_core::quant`);
+//! - the heads use one weight scale for the whole tensor, so the int32 accumulators order the
+//!   same way as the dequantized logits and feed the argmax directly.
+//!
+//! The same integer computation is written as a standard ONNX graph ([`QuantNet::onnx`]) using
+//! only ops that tract and onnxruntime compute exactly: `Round`, `Clip`, `Conv` on exact
+//! integer-valued floats, `ConvInteger`, `MatMulInteger`, `Add` (int32), `Cast`, `Mul`,
+//! `LeakyRelu`, `QuantizeLinear` with scale 1, `ReduceMax` (int8), `ReduceSum` (int32), `Div`.
+
+use anyhow::{ensure, Result};
+use evpose_core::model::{DType, LayerKind, WeightType, FEATURES};
+use evpose_core::quant::{InputCoding, FIRST_BIAS_LIMIT, FIRST_WEIGHT_LIMIT};
+use evpose_core::{run_f32_observed, scratch_words, Model, Stage};
+
+use super::net::{
+    f32_blob, le_bytes, write_blob, AlignedBlob, BlobHeader, BlobLayer, Dense, FloatNet,
+};
+
+/// Largest activation magnitudes seen during calibration.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Ranges {
+    /// Per point layer.
+    pub point: Vec<f32>,
+    /// The pooled mean half (`[max, mean]`: the max half takes the last point layer's range).
+    pub mean: f32,
+    /// Per FC layer.
+    pub fc: Vec<f32>,
+    /// Windows seen.
+    pub windows: usize,
+}
+
+/// Records activation ranges of `net` over calibration inputs.
+pub fn calibrate(net: &FloatNet, inputs: &[Vec<[f32; 5]>]) -> Result<Ranges> {
+    ensure!(
+        !inputs.is_empty(),
+        "calibration needs at least one input window"
+    );
+    let blob = AlignedBlob::new(&f32_blob(net)?);
+    let model = Model::parse(blob.bytes()).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut scratch = vec![0f32; scratch_words(&model)];
+    let mut x = vec![0f32; model.joints() * model.width()];
+    let mut y = vec![0f32; model.joints() * model.height()];
+    let pooled = net.pooled_width();
+    let mut r = Ranges {
+        point: vec![0.0; net.point.len()],
+        mean: 0.0,
+        fc: vec![0.0; net.fc.len()],
+        windows: inputs.len(),
+    };
+    let absmax = |v: &[f32]| v.iter().fold(0f32, |m, x| m.max(x.abs()));
+    for points in inputs {
+        run_f32_observed(
+            &model,
+            points,
+            &mut scratch,
+            &mut x,
+            &mut y,
+            |stage, v| match stage {
+                Stage::Point(i) => r.point[i] = r.point[i].max(absmax(v)),
+                Stage::Pooled => r.mean = r.mean.max(absmax(&v[pooled..])),
+                Stage::Fc(i) => r.fc[i] = r.fc[i].max(absmax(v)),
+            },
+        )
+        .map_err(|e| anyhow::anyhow!("calibration inference: {e}"))?;
+    }
+    Ok(r)
+}
+
+/// Integer weights of one layer.
+#[derive(Clone, Debug, PartialEq)]
+pub enum QWeights {
+    /// i16 (first layer).
+    I16(Vec<i16>),
+    /// i8.
+    I8(Vec<i8>),
+}
+
+/// One quantized layer.
+#[derive(Clone, Debug, PartialEq)]
+pub struct QLayer {
+    /// Role.
+    pub kind: LayerKind,
+    /// The float layer's shape, sources and activation.
+    pub in_dim: usize,
+    /// Output width.
+    pub out_dim: usize,
+    /// Sources bitmask (point layers).
+    pub sources: u32,
+    /// LeakyReLU slope.
+    pub leaky: Option<f32>,
+    /// `[out][in]` integer weights.
+    pub w: QWeights,
+    /// Bias in accumulator units.
+    pub b: Vec<i32>,
+    /// Requantization multipliers (empty for the heads).
+    pub scales: Vec<f32>,
+}
+
+/// A quantized network: the int8 blob's content.
+#[derive(Clone, Debug, PartialEq)]
+pub struct QuantNet {
+    /// Layers in blob order.
+    pub layers: Vec<QLayer>,
+    /// Number of point layers.
+    pub point_layers: usize,
+    /// Input coding.
+    pub coding: InputCoding,
+    /// Average-pool constant `c = s_last / s_mean`.
+    pub avg_scale: f32,
+    /// Joints.
+    pub joints: usize,
+    /// Head width `D`.
+    pub head_dim: usize,
+    /// Fixed point count of the source model.
+    pub points: Option<usize>,
+}
+
+/// Activation scale from a range: `max|y| / 127` (1 for a layer that never fired).
+fn act_scale(range: f32) -> f64 {
+    if range > 0.0 {
+        f64::from(range) / 127.0
+    } else {
+        1.0
+    }
+}
+
+/// Quantized weights of a dense layer whose input has per-channel units `s_in`.
+struct Folded {
+    w: Vec<i32>,
+    b: Vec<i32>,
+    /// Weight scale per output channel (real value of one accumulator unit).
+    sw: Vec<f64>,
+}
+
+fn fold(l: &Dense, s_in: &[f64], limit: f64, per_tensor: bool, bias_limit: f64) -> Folded {
+    let eff = |o: usize, k: usize| f64::from(l.w[o * l.in_dim + k]) * s_in[k];
+    let row_max = |o: usize| (0..l.in_dim).fold(0f64, |m, k| m.max(eff(o, k).abs()));
+    let mut sw: Vec<f64> = (0..l.out_dim).map(row_max).collect();
+    if per_tensor {
+        let m = sw.iter().fold(0f64, |a, &b| a.max(b));
+        sw.iter_mut().for_each(|s| *s = m);
+    }
+    sw.iter_mut()
+        .for_each(|s| *s = if *s > 0.0 { *s / limit } else { 1.0 });
+    let mut w = Vec::with_capacity(l.w.len());
+    for (o, &s) in sw.iter().enumerate() {
+        for k in 0..l.in_dim {
+            w.push((eff(o, k) / s).round_ties_even().clamp(-limit, limit) as i32);
+        }
+    }
+    let b =
+        l.b.iter()
+            .zip(&sw)
+            .map(|(&b, &s)| {
+                (f64::from(b) / s)
+                    .round_ties_even()
+                    .clamp(-bias_limit, bias_limit) as i32
+            })
+            .collect();
+    Folded { w, b, sw }
+}
+
+/// Quantizes `net` with calibrated `ranges`.
+pub fn quantize(net: &FloatNet, ranges: &Ranges) -> Result<QuantNet> {
+    let coding = InputCoding::DEFAULT;
+    let s_point: Vec<f64> = ranges.point.iter().map(|&r| act_scale(r)).collect();
+    let s_fc: Vec<f64> = ranges.fc.iter().map(|&r| act_scale(r)).collect();
+    let s_mean = act_scale(ranges.mean);
+    let mut layers = Vec::new();
+    for (i, l) in net.point.iter().enumerate() {
+        let (s_in, limit, bias_limit) = if l.sources == 1 {
+            let s: Vec<f64> = (0..FEATURES)
+                .map(|f| 1.0 / f64::from(coding.factor(f)))
+                .collect();
+            (
+                s,
+                f64::from(FIRST_WEIGHT_LIMIT),
+                f64::from(FIRST_BIAS_LIMIT),
+            )
+        } else {
+            let mut s = Vec::with_capacity(l.in_dim);
+            for src in (1..=net.point.len()).filter(|b| l.sources >> b & 1 == 1) {
+                s.extend(std::iter::repeat_n(
+                    s_point[src - 1],
+                    net.point[src - 1].out_dim,
+                ));
+            }
+            (s, 127.0, f64::from(i32::MAX))
+        };
+        let f = fold(l, &s_in, limit, false, bias_limit);
+        let w = if l.sources == 1 {
+            QWeights::I16(f.w.iter().map(|&v| v as i16).collect())
+        } else {
+            QWeights::I8(f.w.iter().map(|&v| v as i8).collect())
+        };
+        layers.push(requant_layer(LayerKind::Point, l, w, f, s_point[i]));
+    }
+    let last = *s_point.last().unwrap_or(&1.0);
+    let pooled = net.pooled_width();
+    let mut s_in: Vec<f64> = std::iter::repeat_n(last, pooled)
+        .chain(std::iter::repeat_n(s_mean, pooled))
+        .collect();
+    for (i, l) in net.fc.iter().enumerate() {
+        let f = fold(l, &s_in, 127.0, false, f64::from(i32::MAX));
+        let w = QWeights::I8(f.w.iter().map(|&v| v as i8).collect());
+        layers.push(requant_layer(LayerKind::Fc, l, w, f, s_fc[i]));
+        s_in = vec![s_fc[i]; l.out_dim];
+    }
+    for (kind, h) in [
+        (LayerKind::HeadX, &net.head_x),
+        (LayerKind::HeadY, &net.head_y),
+    ] {
+        let f = fold(h, &s_in[..h.in_dim], 127.0, true, f64::from(i32::MAX));
+        layers.push(QLayer {
+            kind,
+            in_dim: h.in_dim,
+            out_dim: h.out_dim,
+            sources: 0,
+            leaky: None,
+            w: QWeights::I8(f.w.iter().map(|&v| v as i8).collect()),
+            b: f.b,
+            scales: Vec::new(),
+        });
+    }
+    Ok(QuantNet {
+        layers,
+        point_layers: net.point.len(),
+        coding,
+        avg_scale: (last / s_mean) as f32,
+        joints: net.joints,
+        head_dim: net.head_dim(),
+        points: net.points,
+    })
+}
+
+fn requant_layer(kind: LayerKind, l: &Dense, w: QWeights, f: Folded, s_out: f64) -> QLayer {
+    QLayer {
+        kind,
+        in_dim: l.in_dim,
+        out_dim: l.out_dim,
+        sources: l.sources,
+        leaky: l.leaky,
+        w,
+        b: f.b,
+        scales: f.sw.iter().map(|&s| (s / s_out) as f32).collect(),
+    }
+}
+
+impl QuantNet {
+    /// The x and y heads.
+    fn heads(&self) -> (&QLayer, &QLayer) {
+        let n = self.layers.len();
+        (&self.layers[n - 2], &self.layers[n - 1])
+    }
+
+    /// Serializes the int8 blob for the core.
+    pub fn blob(&self) -> Result<Vec<u8>> {
+        let (hx, hy) = self.heads();
+        let layers: Vec<BlobLayer> = self
+            .layers
+            .iter()
+            .map(|l| {
+                let (weight_type, weights) = match &l.w {
+                    QWeights::I16(w) => (WeightType::I16, le_bytes(w)),
+                    QWeights::I8(w) => (WeightType::I8, le_bytes(w)),
+                };
+                BlobLayer {
+                    kind: l.kind,
+                    in_dim: l.in_dim,
+                    out_dim: l.out_dim,
+                    sources: l.sources,
+                    leaky: l.leaky,
+                    weight_type,
+                    weights,
+                    bias: le_bytes(&l.b),
+                    scales: le_bytes(&l.scales),
+                }
+            })
+            .collect();
+        write_blob(
+            &BlobHeader {
+                dtype: DType::I8,
+                joints: self.joints,
+                width: hx.out_dim,
+                height: hy.out_dim,
+                head_dim: self.head_dim,
+                point_layers: self.point_layers,
+                input_shifts: self.coding.shifts,
+                avg_scale: self.avg_scale,
+            },
+            &layers,
+        )
+    }
+
+    /// The same integer computation as a standard ONNX graph (opset 13) with int32 outputs
+    /// `simdr_x` `(1, J, W)` and `simdr_y` `(1, J, H)`.
+    pub fn onnx(&self) -> Result<Vec<u8>> {
+        super::qonnx::build(self)
+    }
+}

@@ -1,0 +1,215 @@
+//! Inference against independent engines.
+//!
+//! - f32: the core's f32 engine and tract against onnxruntime's outputs (shared reference
+//!   files): max |Δ| ≤ 1e-4 · max|logit| per output and identical argmax for every joint and
+//!   axis. The tolerance covers f32 summation order (onnxruntime blocks its GEMMs; the core
+//!   sums each dot product in index order); the observed difference is below 1e-5.
+//! - int8: the core's int8 engine against tract running the quantized ONNX graph: identical
+//!   int32 accumulators, compared with `==`.
+//!
+//! The small model and its references are bundled; the 18 MB paper model is read from
+//! `../shared/reference` when present (CI has it) and its tests say so and return otherwise.
+
+use std::path::{Path, PathBuf};
+
+use evpose_core::simdr::argmax;
+use evpose_host::cli::inference::{argmax_agreement, parity_report};
+use evpose_host::model::{self, quant, AlignedBlob, Logits, TractModel};
+use evpose_host::npy;
+use evpose_tests::{fixtures, shared, street_windows};
+
+struct Case {
+    model: PathBuf,
+    /// Input point clouds, one per window.
+    inputs: Vec<Vec<[f32; 5]>>,
+    /// onnxruntime's outputs per window.
+    reference: Vec<Logits<f32>>,
+}
+
+fn load_case(dir: &Path, model: &str, input: &str, key: &str) -> Case {
+    let mut inputs = Vec::new();
+    let mut reference = Vec::new();
+    for w in street_windows() {
+        inputs.push(model::read_points(&dir.join(format!("{w}.{input}.npy"))).unwrap());
+        let (sx, x) = npy::read_exact::<f32>(&dir.join(format!("{w}.{key}.simdr_x.npy"))).unwrap();
+        let (_, y) = npy::read_exact::<f32>(&dir.join(format!("{w}.{key}.simdr_y.npy"))).unwrap();
+        reference.push(Logits {
+            joints: sx[0] as usize,
+            x,
+            y,
+        });
+    }
+    Case {
+        model: dir.join(model),
+        inputs,
+        reference,
+    }
+}
+
+fn small() -> Case {
+    load_case(&fixtures(), "pointnet-small.onnx", "points", "small")
+}
+
+fn paper() -> Option<Case> {
+    let dir = shared()?.join("reference");
+    if !dir.join("pointnet-paper.onnx").exists() {
+        return None;
+    }
+    Some(load_case(&dir, "pointnet-paper.onnx", "input2048", "paper"))
+}
+
+/// max |Δ| ≤ 1e-4 · max|logit| and identical argmax, per output.
+fn assert_close(got: &Logits<f32>, want: &Logits<f32>, what: &str) {
+    for (g, w, n, axis) in [
+        (&got.x, &want.x, want.width(), "x"),
+        (&got.y, &want.y, want.height(), "y"),
+    ] {
+        assert_eq!(g.len(), w.len(), "{what} {axis}: shape");
+        let max_logit = w.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let max_diff = g
+            .iter()
+            .zip(w.iter())
+            .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(
+            max_diff <= 1e-4 * max_logit,
+            "{what} {axis}: max|Δ| {max_diff} > 1e-4 · {max_logit}"
+        );
+        for j in 0..want.joints {
+            let r = j * n..(j + 1) * n;
+            assert_eq!(
+                argmax(&g[r.clone()]),
+                argmax(&w[r]),
+                "{what} {axis}: argmax of joint {j}"
+            );
+        }
+    }
+}
+
+fn check_float(case: &Case) {
+    let blob = model::load_blob(&case.model).unwrap();
+    let mut tract = TractModel::load(&case.model).unwrap();
+    for (i, (input, want)) in case.inputs.iter().zip(&case.reference).enumerate() {
+        assert_close(
+            &model::run_core_f32(&blob, input).unwrap(),
+            want,
+            &format!("core f32, window {i}"),
+        );
+        assert_close(
+            &tract.run(input).unwrap(),
+            want,
+            &format!("tract, window {i}"),
+        );
+    }
+}
+
+fn check_int8(case: &Case, tag: &str) {
+    let net = model::import_onnx(&case.model).unwrap();
+    let ranges = quant::calibrate(&net, &case.inputs[..3]).unwrap();
+    let q = quant::quantize(&net, &ranges).unwrap();
+    let blob = AlignedBlob::new(&q.blob().unwrap());
+    let onnx = std::env::temp_dir().join(format!("evpose-{tag}-{}.q.onnx", std::process::id()));
+    std::fs::write(&onnx, q.onnx().unwrap()).unwrap();
+    let float = AlignedBlob::new(&model::f32_blob(&net).unwrap());
+    let r = parity_report(&blob, &onnx, &case.inputs, Some(&float)).unwrap();
+    assert_eq!(r.mismatches, 0, "{tag}: {r:?}");
+    assert_eq!(r.identical, case.inputs.len());
+    let (close, total) = r.within_1px.unwrap();
+    eprintln!("{tag}: int8 argmax within 1 px of float on {close}/{total} joint axes");
+}
+
+#[test]
+fn small_model_float_engines_match_onnxruntime() {
+    check_float(&small());
+}
+
+#[test]
+fn small_model_int8_core_equals_tract_exactly() {
+    check_int8(&small(), "small");
+}
+
+#[test]
+fn paper_model_float_engines_match_onnxruntime() {
+    let Some(case) = paper() else {
+        eprintln!(
+            "NOTE: ../shared/reference/pointnet-paper.onnx not present; paper-model check not run"
+        );
+        return;
+    };
+    check_float(&case);
+}
+
+#[test]
+fn paper_model_int8_core_equals_tract_exactly() {
+    let Some(case) = paper() else {
+        eprintln!(
+            "NOTE: ../shared/reference/pointnet-paper.onnx not present; paper-model check not run"
+        );
+        return;
+    };
+    check_int8(&case, "paper");
+}
+
+#[test]
+fn importer_reads_the_family_shape() {
+    let net = model::import_onnx(&fixtures().join("pointnet-small.onnx")).unwrap();
+    let widths: Vec<_> = net
+        .point
+        .iter()
+        .map(|l| (l.in_dim, l.out_dim, l.sources))
+        .collect();
+    assert_eq!(
+        widths,
+        [
+            (5, 32, 1),
+            (32, 32, 2),
+            (32, 64, 4),
+            (64, 128, 8),
+            (256, 256, 0b11110)
+        ]
+    );
+    assert_eq!(
+        net.fc
+            .iter()
+            .map(|l| (l.in_dim, l.out_dim))
+            .collect::<Vec<_>>(),
+        [(512, 256), (256, 832)]
+    );
+    assert_eq!(
+        (
+            net.joints,
+            net.head_dim(),
+            net.head_x.out_dim,
+            net.head_y.out_dim
+        ),
+        (13, 64, 346, 260)
+    );
+    assert_eq!(net.points, None, "dynamic point count");
+    assert!(net
+        .point
+        .iter()
+        .chain(&net.fc)
+        .all(|l| l.leaky == Some(0.01)));
+}
+
+#[test]
+fn quantized_argmax_tracks_float_reasonably() {
+    // Not a quality gate (the weights are random): a sanity floor that catches broken scales.
+    let case = small();
+    let net = model::import_onnx(&case.model).unwrap();
+    let q = quant::quantize(&net, &quant::calibrate(&net, &case.inputs[..3]).unwrap()).unwrap();
+    let blob = AlignedBlob::new(&q.blob().unwrap());
+    let float = AlignedBlob::new(&model::f32_blob(&net).unwrap());
+    let (mut close, mut total) = (0, 0);
+    for input in &case.inputs {
+        let (c, t) = argmax_agreement(
+            &model::run_core_i8(&blob, input).unwrap(),
+            &model::run_core_f32(&float, input).unwrap(),
+        );
+        close += c;
+        total += t;
+    }
+    assert!(
+        close * 10 >= total * 8,
+        "only {close}/{total} joint axes within 1 px"
+    );
+}
