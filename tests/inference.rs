@@ -213,3 +213,33 @@ fn quantized_argmax_tracks_float_reasonably() {
         "only {close}/{total} joint axes within 1 px"
     );
 }
+
+#[test]
+fn int8_engine_gives_identical_integers_with_every_kernel_set() {
+    use evpose_core::kernels::{Isa, Kernels};
+    let case = small();
+    let net = model::import_onnx(&case.model).unwrap();
+    let q = quant::quantize(&net, &quant::calibrate(&net, &case.inputs[..1]).unwrap()).unwrap();
+    let blob = AlignedBlob::new(&q.blob().unwrap());
+    let reference: Vec<_> = case.inputs[..3]
+        .iter()
+        .map(|i| model::run_core_i8_with(&Kernels::reference(), &blob, i).unwrap())
+        .collect();
+    for isa in Isa::ALL {
+        let Some(k) = isa.kernels() else {
+            eprintln!(
+                "kernel set {} not supported on this CPU; not tested",
+                isa.name()
+            );
+            continue;
+        };
+        for (input, want) in case.inputs[..3].iter().zip(&reference) {
+            assert_eq!(
+                &model::run_core_i8_with(&k, &blob, input).unwrap(),
+                want,
+                "{}",
+                isa.name()
+            );
+        }
+    }
+}

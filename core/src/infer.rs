@@ -10,7 +10,7 @@
 
 use core::fmt;
 
-use crate::kernels;
+use crate::kernels::{self, Kernels};
 use crate::model::{Bias, DType, LayerKind, Model, Weights, FEATURES};
 use crate::quant::{self, InputCoding};
 
@@ -240,8 +240,21 @@ fn leaky_f32(v: &mut [f32], alpha: Option<f32>) {
 }
 
 /// Runs the int8 engine on `points`, writing the heads' int32 accumulators (bias included):
-/// x (`J × W`) and y (`J × H`).
+/// x (`J × W`) and y (`J × H`), with the kernels chosen at compile time ([`Kernels::best`]).
 pub fn run_i8(
+    model: &Model<'_>,
+    points: &[[f32; FEATURES]],
+    scratch: &mut [i32],
+    out_x: &mut [i32],
+    out_y: &mut [i32],
+) -> Result<(), InferError> {
+    run_i8_with(&Kernels::best(), model, points, scratch, out_x, out_y)
+}
+
+/// [`run_i8`] with a kernel table, e.g. [`Kernels::detect`] for the CPU it runs on. Every table
+/// gives the same integers (the kernels are bit-exact with the reference).
+pub fn run_i8_with(
+    k: &Kernels,
     model: &Model<'_>,
     points: &[[f32; FEATURES]],
     scratch: &mut [i32],
@@ -285,9 +298,9 @@ pub fn run_i8(
             let acc = &mut acc[..out_dim];
             let (before, after) = acts.split_at_mut(offs[i]);
             match l.weights {
-                Weights::I16(w) => kernels::matvec_i16(w, input, bias, acc),
+                Weights::I16(w) => k.matvec_i16(w, input, bias, acc),
                 Weights::I8(w) => {
-                    kernels::matvec_i8(w, &before[source_range(l.desc.sources, &offs)], bias, acc)
+                    k.matvec_i8(w, &before[source_range(l.desc.sources, &offs)], bias, acc)
                 }
                 Weights::F32(_) => return Err(InferError::DType),
             }
@@ -312,7 +325,7 @@ pub fn run_i8(
         };
         let out_dim = l.desc.out_dim as usize;
         let acc = &mut acc[..out_dim];
-        kernels::matvec_i8(w, &cur.0[..width], bias, acc);
+        k.matvec_i8(w, &cur.0[..width], bias, acc);
         requantize_all(acc, l.scales, l.desc.leaky, &mut cur.1[..out_dim]);
         width = out_dim;
         cur = (cur.1, cur.0);

@@ -32,7 +32,9 @@
 //! }
 //! ```
 #![cfg_attr(not(test), no_std)]
-#![forbid(unsafe_code)]
+#![deny(unsafe_code)]
+#![deny(unsafe_op_in_unsafe_fn)]
+#![warn(clippy::undocumented_unsafe_blocks)]
 #![deny(missing_docs)]
 #![warn(trivial_numeric_casts, unused_qualifications)]
 
@@ -46,7 +48,7 @@ pub mod sample;
 pub mod simdr;
 
 pub use event::Event;
-pub use infer::{run_f32, run_f32_observed, run_i8, scratch_words, InferError, Stage};
+pub use infer::{run_f32, run_f32_observed, run_i8, run_i8_with, scratch_words, InferError, Stage};
 pub use model::{DType, Model, ModelError};
 pub use raster::{
     ConfigError, Davis346Storage, InlineStorage, Point, Pushed, RasterConfig, RasterStats,

@@ -266,7 +266,7 @@ impl<'a> Model<'a> {
         if stored != computed {
             return Err(ModelError::Checksum { stored, computed });
         }
-        if blob.as_ptr() as usize % ALIGN != 0 {
+        if !(blob.as_ptr() as usize).is_multiple_of(ALIGN) {
             return Err(ModelError::Misaligned);
         }
         if blob[7] != 0 {
@@ -413,7 +413,7 @@ impl<'a> Model<'a> {
 
     fn check_array(&self, offset: u32, bytes: usize, i: usize) -> Result<(), ModelError> {
         let o = offset as usize;
-        let ok = o % ALIGN == 0
+        let ok = o.is_multiple_of(ALIGN)
             && o >= HEADER_LEN
             && o.checked_add(bytes)
                 .is_some_and(|end| end <= self.blob.len());

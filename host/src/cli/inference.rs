@@ -432,7 +432,7 @@ pub fn bench_infer(a: &BenchInferArgs) -> Result<()> {
         speedup_i8_vs_tract: tract_ms / i8_ms,
         speedup_i8_vs_f32: f32_ms / i8_ms,
         i8_gmacs: macs as f64 / (i8_ms * 1e-3) / 1e9,
-        kernels: "reference".into(),
+        kernels: model::kernels().name().into(),
     };
     if a.json {
         println!("{}", serde_json::to_string_pretty(&b)?);

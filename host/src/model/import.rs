@@ -154,7 +154,7 @@ impl Importer {
         );
         let last = self.fc.last().map_or(0, |l| l.out_dim);
         ensure!(
-            last % hx.in_dim == 0,
+            last.is_multiple_of(hx.in_dim),
             "last FC width {last} is not a multiple of the head width {}",
             hx.in_dim
         );

@@ -9,7 +9,8 @@ pub mod quant;
 use std::path::Path;
 
 use anyhow::{anyhow, bail, ensure, Context, Result};
-use evpose_core::{run_f32, run_i8, scratch_words, Model};
+use evpose_core::kernels::Kernels;
+use evpose_core::{run_f32, run_i8_with, scratch_words, Model};
 use tract_core::internal::DimLike;
 use tract_onnx::prelude::*;
 use tract_onnx::tract_hir::infer::Factoid;
@@ -175,14 +176,30 @@ pub fn run_core_f32(blob: &AlignedBlob, points: &[[f32; 5]]) -> Result<Logits<f3
     Ok(Logits { joints: j, x, y })
 }
 
-/// Runs the core's int8 engine; outputs are the heads' int32 accumulators.
+/// The int8 kernels for this CPU (detected once).
+pub fn kernels() -> &'static Kernels {
+    static K: std::sync::OnceLock<Kernels> = std::sync::OnceLock::new();
+    K.get_or_init(Kernels::detect)
+}
+
+/// Runs the core's int8 engine with this CPU's kernels; outputs are the heads' int32
+/// accumulators.
 pub fn run_core_i8(blob: &AlignedBlob, points: &[[f32; 5]]) -> Result<Logits<i32>> {
+    run_core_i8_with(kernels(), blob, points)
+}
+
+/// Runs the core's int8 engine with the given kernels.
+pub fn run_core_i8_with(
+    k: &Kernels,
+    blob: &AlignedBlob,
+    points: &[[f32; 5]],
+) -> Result<Logits<i32>> {
     let model = Model::parse(blob.bytes()).map_err(|e| anyhow!("{e}"))?;
     let mut scratch = vec![0i32; scratch_words(&model)];
     let (j, w, h) = (model.joints(), model.width(), model.height());
     let mut x = vec![0i32; j * w];
     let mut y = vec![0i32; j * h];
-    run_i8(&model, points, &mut scratch, &mut x, &mut y).map_err(|e| anyhow!("{e}"))?;
+    run_i8_with(k, &model, points, &mut scratch, &mut x, &mut y).map_err(|e| anyhow!("{e}"))?;
     Ok(Logits { joints: j, x, y })
 }
 

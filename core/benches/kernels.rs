@@ -1,0 +1,70 @@
+//! Matrix-vector kernels, reference against every kernel this CPU runs.
+//!
+//! Throughput is in MACs (criterion's "elements"): `K × out` per call.
+//! `cargo bench -p evpose-core --bench kernels`; add `-- --quick` for a short run.
+
+use std::hint::black_box;
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use evpose_core::kernels::{Isa, Kernels};
+
+/// Deterministic pseudo-random values (xorshift).
+fn values<T>(n: usize, seed: u64, f: impl Fn(u64) -> T) -> Vec<T> {
+    let mut s = seed | 1;
+    (0..n)
+        .map(|_| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            f(s)
+        })
+        .collect()
+}
+
+fn kernels_here() -> Vec<Kernels> {
+    Isa::ALL.iter().filter_map(|isa| isa.kernels()).collect()
+}
+
+fn matvec_i8(c: &mut Criterion) {
+    // conv5 (per point) and fc1 (once per window) of the paper's PointNet; conv2 and the heads.
+    for (name, k, n) in [
+        ("conv5", 512, 1024),
+        ("fc1", 2048, 1024),
+        ("conv2", 64, 64),
+        ("head_x", 128, 346),
+    ] {
+        let w = values(k * n, 1, |v| v as i8);
+        let x = values(k, 2, |v| v as i8);
+        let bias = values(n, 3, |v| (v as i32) >> 8);
+        let mut out = vec![0; n];
+        let mut g = c.benchmark_group(format!("matvec_i8/{name} K={k} out={n}"));
+        g.throughput(Throughput::Elements((k * n) as u64));
+        for kern in kernels_here() {
+            g.bench_function(kern.name(), |b| {
+                b.iter(|| kern.matvec_i8(black_box(&w), black_box(&x), &bias, &mut out))
+            });
+        }
+        g.finish();
+    }
+}
+
+fn matvec_i16(c: &mut Criterion) {
+    // conv1 (K = 5, the engines' only i16 layer), and a wide shape for peak throughput.
+    for (name, k, n) in [("conv1", 5, 64), ("wide", 512, 1024)] {
+        let w = values(k * n, 4, |v| (v % 2047) as i16 - 1023);
+        let x = values(k, 5, |v| (v % 4095) as i16 - 2047);
+        let bias = values(n, 6, |v| (v as i32) >> 8);
+        let mut out = vec![0; n];
+        let mut g = c.benchmark_group(format!("matvec_i16/{name} K={k} out={n}"));
+        g.throughput(Throughput::Elements((k * n) as u64));
+        for kern in kernels_here() {
+            g.bench_function(kern.name(), |b| {
+                b.iter(|| kern.matvec_i16(black_box(&w), black_box(&x), &bias, &mut out))
+            });
+        }
+        g.finish();
+    }
+}
+
+criterion_group!(benches, matvec_i8, matvec_i16);
+criterion_main!(benches);
