@@ -243,3 +243,29 @@ fn int8_engine_gives_identical_integers_with_every_kernel_set() {
         }
     }
 }
+
+#[test]
+fn int8_engine_gives_identical_integers_for_every_block_size() {
+    use evpose_core::{run_i8, scratch_words_for_block, Model};
+    let case = small();
+    let net = model::import_onnx(&case.model).unwrap();
+    let q = quant::quantize(&net, &quant::calibrate(&net, &case.inputs[..1]).unwrap()).unwrap();
+    let blob = AlignedBlob::new(&q.blob().unwrap());
+    let m = Model::parse(blob.bytes()).unwrap();
+    let input = &case.inputs[4][..1000]; // 1000 points: not a multiple of most block sizes
+    let run = |words: usize| {
+        let (mut x, mut y) = (vec![0; 13 * 346], vec![0; 13 * 260]);
+        run_i8(&m, input, &mut vec![0; words], &mut x, &mut y).unwrap();
+        (x, y)
+    };
+    let one = run(scratch_words_for_block(&m, 1));
+    for block in [2, 3, 7, 8, 16] {
+        assert_eq!(
+            run(scratch_words_for_block(&m, block)),
+            one,
+            "block {block}"
+        );
+    }
+    // Scratch between two block sizes uses the smaller block.
+    assert_eq!(run(scratch_words_for_block(&m, 5) + 3), one);
+}

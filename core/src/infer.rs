@@ -56,21 +56,42 @@ impl fmt::Display for InferError {
 
 impl core::error::Error for InferError {}
 
-/// 32-bit scratch words an inference with `model` needs (either engine).
+/// Most points the int8 engine processes per pass over the point layers' weights.
+pub const MAX_BLOCK: usize = 16;
+
+/// 32-bit scratch words an inference with `model` needs at least (either engine; the int8
+/// engine then processes one point at a time).
 pub fn scratch_words(model: &Model<'_>) -> usize {
+    scratch_words_for_block(model, 1)
+}
+
+/// Scratch words for the int8 engine to process `block` points per pass over the point layers'
+/// weights (`1..=MAX_BLOCK`; more scratch, fewer weight reads). The f32 engine needs
+/// `scratch_words(model)` whatever the block.
+///
+/// The int8 engine picks the largest block the lent scratch holds.
+pub fn scratch_words_for_block(model: &Model<'_>, block: usize) -> usize {
     let pooled = model.pooled_width() as usize;
     let fc = (2 * pooled).max(model.widest_fc()) + model.widest_fc();
     let acts = model.point_activation_width();
     match model.dtype() {
         // input features | point activations | FC ping-pong | per-layer accumulators
         DType::F32 => FEATURES + acts + 2 * pooled + fc,
-        // i32 sums | i32 accumulators | bytes: 8 × i16 input, i8 activations, i8 FC ping-pong
+        // i32: sums, block accumulators | bytes: block of i16 inputs (8 each), block of
+        // activations, block of gathered layer inputs, FC ping-pong
         DType::I8 => {
-            let widest = widest_layer(model);
-            let bytes = 16 + acts + fc;
-            pooled + widest + bytes.div_ceil(4)
+            let b = block.clamp(1, MAX_BLOCK);
+            let bytes = b * (16 + acts + widest_input(model)) + fc;
+            pooled + b * widest_layer(model) + bytes.div_ceil(4)
         }
     }
+}
+
+fn widest_input(model: &Model<'_>) -> usize {
+    (0..model.point_layer_count())
+        .map(|i| model.layer(i).desc.in_dim as usize)
+        .max()
+        .unwrap_or(0)
 }
 
 fn widest_layer(model: &Model<'_>) -> usize {
@@ -276,40 +297,73 @@ pub fn run_i8_with(
     let pooled = model.pooled_width() as usize;
     let last = model.point_layer_count() - 1;
     let widest = widest_layer(model);
+    let widest_in = widest_input(model);
+    let block = (1..=MAX_BLOCK)
+        .rev()
+        .find(|&b| scratch_words_for_block(model, b) <= scratch.len())
+        .unwrap_or(1);
     let (sum, rest) = scratch.split_at_mut(pooled);
-    let (acc, bytes) = rest.split_at_mut(widest);
+    let (acc, bytes) = rest.split_at_mut(block * widest);
     let bytes: &mut [i8] = bytemuck::cast_slice_mut(bytes);
-    let (input_bytes, bytes) = bytes.split_at_mut(16);
-    let input: &mut [i16] = bytemuck::cast_slice_mut(input_bytes);
-    let input = &mut input[..FEATURES];
-    let (acts, fc) = bytes.split_at_mut(acts_len);
+    let (input_bytes, bytes) = bytes.split_at_mut(16 * block);
+    let inputs: &mut [i16] = bytemuck::cast_slice_mut(input_bytes);
+    let (acts, bytes) = bytes.split_at_mut(block * acts_len);
+    let (gathered, fc) = bytes.split_at_mut(block * widest_in);
     let (a, b) = fc.split_at_mut((2 * pooled).max(model.widest_fc()));
     let (max, _) = a.split_at_mut(pooled);
     max.fill(i8::MIN);
     sum.fill(0);
-    for p in points {
-        input.copy_from_slice(&coding.code(p));
+    for chunk in points.chunks(block) {
+        let n = chunk.len();
+        for (dst, p) in inputs.chunks_exact_mut(8).zip(chunk) {
+            dst[..FEATURES].copy_from_slice(&coding.code(p));
+        }
         for i in 0..=last {
             let l = model.layer(i);
             let Bias::I32(bias) = l.bias else {
                 return Err(InferError::DType);
             };
-            let out_dim = l.desc.out_dim as usize;
-            let acc = &mut acc[..out_dim];
-            let (before, after) = acts.split_at_mut(offs[i]);
+            let (k_in, out_dim) = (l.desc.in_dim as usize, l.desc.out_dim as usize);
+            let acc = &mut acc[..n * out_dim];
             match l.weights {
-                Weights::I16(w) => k.matvec_i16(w, input, bias, acc),
+                Weights::I16(w) => {
+                    for (x, acc) in inputs.chunks_exact(8).zip(acc.chunks_exact_mut(out_dim)) {
+                        k.matvec_i16(w, &x[..FEATURES], bias, acc);
+                    }
+                }
                 Weights::I8(w) => {
-                    k.matvec_i8(w, &before[source_range(l.desc.sources, &offs)], bias, acc)
+                    // Gather each point's sources (a contiguous run of its activations) into
+                    // rows of K, then one pass over the weights for the whole block.
+                    let src = source_range(l.desc.sources, &offs);
+                    for (row, act) in gathered
+                        .chunks_exact_mut(k_in)
+                        .zip(acts.chunks_exact(acts_len))
+                        .take(n)
+                    {
+                        row.copy_from_slice(&act[src.clone()]);
+                    }
+                    matmat_i8(k, w, k_in, &gathered[..n * k_in], bias, acc);
                 }
                 Weights::F32(_) => return Err(InferError::DType),
             }
-            requantize_all(acc, l.scales, l.desc.leaky, &mut after[..out_dim]);
+            for (row, act) in acc
+                .chunks_exact(out_dim)
+                .zip(acts.chunks_exact_mut(acts_len))
+            {
+                requantize_all(
+                    row,
+                    l.scales,
+                    l.desc.leaky,
+                    &mut act[offs[i]..offs[i] + out_dim],
+                );
+            }
         }
-        let y = &acts[offs[last]..offs[last + 1]];
-        for ((m, s), &v) in max.iter_mut().zip(sum.iter_mut()).zip(y) {
-            *m = (*m).max(v);
-            *s += i32::from(v);
+        for act in acts.chunks_exact(acts_len).take(n) {
+            let y = &act[offs[last]..offs[last + 1]];
+            for ((m, s), &v) in max.iter_mut().zip(sum.iter_mut()).zip(y) {
+                *m = (*m).max(v);
+                *s += i32::from(v);
+            }
         }
     }
     let n = points.len() as u32;
@@ -347,9 +401,27 @@ pub fn run_i8_with(
     Ok(())
 }
 
+/// `out[p·O + o] = bias[o] + w[o] · x[p]` for each of the `x.len() / K` points.
+fn matmat_i8(k: &Kernels, w: &[i8], k_in: usize, x: &[i8], bias: &[i32], out: &mut [i32]) {
+    let o = bias.len();
+    for (x, out) in x.chunks_exact(k_in).zip(out.chunks_exact_mut(o)) {
+        k.matvec_i8(w, x, bias, out);
+    }
+}
+
 fn requantize_all(acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut [i8]) {
-    for ((o, &a), &s) in out.iter_mut().zip(acc).zip(scales) {
-        *o = quant::requantize(a, s, leaky);
+    // Two loops without a per-element branch on the option, so that both vectorize.
+    match leaky {
+        Some(alpha) => {
+            for ((o, &a), &s) in out.iter_mut().zip(acc).zip(scales) {
+                *o = quant::requantize(a, s, Some(alpha));
+            }
+        }
+        None => {
+            for ((o, &a), &s) in out.iter_mut().zip(acc).zip(scales) {
+                *o = quant::requantize(a, s, None);
+            }
+        }
     }
 }
 

@@ -48,7 +48,10 @@ pub mod sample;
 pub mod simdr;
 
 pub use event::Event;
-pub use infer::{run_f32, run_f32_observed, run_i8, run_i8_with, scratch_words, InferError, Stage};
+pub use infer::{
+    run_f32, run_f32_observed, run_i8, run_i8_with, scratch_words, scratch_words_for_block,
+    InferError, Stage,
+};
 pub use model::{DType, Model, ModelError};
 pub use raster::{
     ConfigError, Davis346Storage, InlineStorage, Point, Pushed, RasterConfig, RasterStats,

@@ -388,6 +388,83 @@ impl<S: RasterStorage> Rasterizer<S> {
         }
     }
 
+    /// Pushes events from a buffer (a DMA transfer, a decoded packet) until a window closes or
+    /// the buffer ends. Returns how many events were consumed and the closed window, if any;
+    /// call again with the rest. Exactly the same outcome as pushing the events one by one
+    /// (windows, drops and counters; checked by a property test), with the per-event checks and
+    /// counters kept in registers.
+    pub fn extend(&mut self, events: &[Event]) -> (usize, Option<Window<'_>>) {
+        let mut used = 0;
+        while used < events.len() {
+            if self.phase == Phase::Filling && self.len > 0 {
+                used += self.fill(&events[used..]);
+                if used == events.len() {
+                    break;
+                }
+            }
+            // Window boundaries, time jumps and the first event go through `push`.
+            let closed = matches!(self.push(events[used]), Pushed::Window(_));
+            used += 1;
+            if closed {
+                return (used, self.last_window());
+            }
+        }
+        (used, None)
+    }
+
+    /// The fast path of [`Rasterizer::extend`]: stores events into a filling window that
+    /// already has its first event, stopping before any event that would close the window.
+    fn fill(&mut self, events: &[Event]) -> usize {
+        let limit = match self.config.window {
+            WindowRule::Events(n) => (n as usize).min(self.capacity),
+            WindowRule::Duration(_) => self.capacity,
+        };
+        let duration = match self.config.window {
+            WindowRule::Duration(d) => i64::from(d),
+            WindowRule::Events(_) => i64::MAX,
+        };
+        let (width, height, t_first) = (self.config.width, self.config.height, self.t_first);
+        let (mut len, mut lo, mut hi, mut t_last) =
+            (self.len, self.off_min, self.off_max, self.t_last);
+        let (mut dropped, mut backwards) = (0u64, 0u64);
+        let parts = self.storage.parts();
+        let (a, hist_x) = (parts.a, parts.hist_x);
+        let mut used = 0;
+        for e in events {
+            if len + 1 >= limit {
+                break; // the closing event goes through push()
+            }
+            if e.x >= width || e.y >= height {
+                dropped += 1;
+                used += 1;
+                continue;
+            }
+            let Some(off) =
+                e.t.checked_sub(t_first)
+                    .filter(|&d| d < duration)
+                    .and_then(|d| i32::try_from(d).ok())
+            else {
+                break; // a time jump or the end of a duration window
+            };
+            backwards += u64::from(e.t < t_last);
+            t_last = e.t;
+            lo = lo.min(off);
+            hi = hi.max(off);
+            a[len] = u64::from(e.x)
+                | u64::from(e.y) << Y_SHIFT
+                | u64::from(e.on) << P_SHIFT
+                | u64::from(off as u32) << 32;
+            hist_x[usize::from(e.x)] += 1;
+            len += 1;
+            used += 1;
+        }
+        self.stats.accepted += (len - self.len) as u64;
+        self.stats.dropped_out_of_range += dropped;
+        self.stats.out_of_order += backwards;
+        (self.len, self.off_min, self.off_max, self.t_last) = (len, lo, hi, t_last);
+        used
+    }
+
     /// Closes the open window now (end of stream, or a timer on a quiet sensor) and returns it.
     /// An empty window gives zero points. If the last window closed with an event held for the
     /// next one, that event forms the new window.

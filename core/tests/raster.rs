@@ -100,6 +100,77 @@ proptest! {
     }
 }
 
+/// Everything a rasterizer produced: windows (points + summary) and final counters.
+fn outcome_by_push(
+    c: RasterConfig,
+    events: &[Event],
+) -> (
+    Vec<(Vec<Point>, evpose_core::raster::WindowSummary)>,
+    RasterStats,
+) {
+    let mut r = Rasterizer::new(c, Small::new()).unwrap();
+    let mut out = Vec::new();
+    for &e in events {
+        if let Pushed::Window(w) = r.push(e) {
+            out.push((w.iter().collect(), w.summary()));
+        }
+    }
+    (out, *r.stats())
+}
+
+fn outcome_by_extend(
+    c: RasterConfig,
+    events: &[Event],
+    chunk: usize,
+) -> (
+    Vec<(Vec<Point>, evpose_core::raster::WindowSummary)>,
+    RasterStats,
+) {
+    let mut r = Rasterizer::new(c, Small::new()).unwrap();
+    let mut out = Vec::new();
+    for mut part in events.chunks(chunk) {
+        while !part.is_empty() {
+            let (used, w) = r.extend(part);
+            if let Some(w) = w {
+                out.push((w.iter().collect(), w.summary()));
+            }
+            part = &part[used..];
+        }
+    }
+    (out, *r.stats())
+}
+
+proptest! {
+    /// `extend` over buffers of any size is `push` event by event: same windows, same counters,
+    /// with out-of-range pixels, backwards time, time jumps and both window rules.
+    #[test]
+    fn extend_equals_push(
+        events in prop::collection::vec(
+            (0u16..18, 0u16..9, prop_oneof![8 => -50i64..1_000, 1 => Just(i64::MAX), 1 => Just(i64::MIN)], any::<bool>())
+                .prop_map(|(x, y, t, on)| Event::new(x, y, t, on)),
+            0..300,
+        ),
+        rule in prop_oneof![(1u32..70).prop_map(WindowRule::Events), (1u32..400).prop_map(WindowRule::Duration)],
+        chunk in 1usize..100,
+    ) {
+        let c = config(rule).clamp_events(64);
+        prop_assert_eq!(outcome_by_extend(c, &events, chunk), outcome_by_push(c, &events));
+    }
+}
+
+trait ClampEvents {
+    fn clamp_events(self, cap: u32) -> Self;
+}
+
+impl ClampEvents for RasterConfig {
+    fn clamp_events(mut self, cap: u32) -> Self {
+        if let WindowRule::Events(n) = self.window {
+            self.window = WindowRule::Events(n.min(cap));
+        }
+        self
+    }
+}
+
 #[test]
 fn out_of_range_pixels_are_dropped_and_counted() {
     let mut r = Rasterizer::new(config(WindowRule::Events(4)), Small::new()).unwrap();

@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
-use evpose_core::{Pushed, RasterConfig, Rasterizer, WindowRule};
+use evpose_core::{RasterConfig, Rasterizer, WindowRule};
 use serde::Serialize;
 
 use crate::io::{self, Batch, CameraInfo, Format};
@@ -373,11 +373,14 @@ pub fn bench_raster_events(
     let mut r = Rasterizer::new(config, VecStorage::new(window_events as usize, &config))?;
     let mut run_once = || {
         let (mut windows, mut points) = (0u64, 0u64);
-        for &e in events {
-            if let Pushed::Window(w) = r.push(e) {
+        let mut rest = events;
+        while !rest.is_empty() {
+            let (used, window) = r.extend(rest);
+            if let Some(w) = window {
                 windows += 1;
                 points += w.len() as u64;
             }
+            rest = &rest[used..];
         }
         if r.buffered() > 0 {
             points += r.flush().len() as u64;

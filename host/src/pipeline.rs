@@ -7,9 +7,7 @@ use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use evpose_core::raster::{RasterParts, MAX_HEIGHT, MAX_WIDTH};
-use evpose_core::{
-    Pushed, RasterConfig, RasterStats, RasterStorage, Rasterizer, Window, WindowRule,
-};
+use evpose_core::{RasterConfig, RasterStats, RasterStorage, Rasterizer, Window, WindowRule};
 
 use crate::io::{self, Batch, Format, StreamInfo};
 
@@ -139,19 +137,34 @@ pub fn rasterize(
     let mut raster = Rasterizer::new(config, VecStorage::new(capacity.max(1), &config))
         .context("invalid rasterization settings")?;
     let mut batch = Batch::default();
+    let mut selected = Vec::new();
     let mut windows = 0;
     while reader
         .read_batch(&mut batch)
         .with_context(|| format!("{}", path.display()))?
     {
-        for (&event, &camera) in batch.events.iter().zip(&batch.cameras) {
-            if camera != opts.camera {
-                continue;
-            }
-            if let Pushed::Window(w) = raster.push(event) {
+        let events: &[evpose_core::Event] = if batch.cameras.iter().all(|&c| c == opts.camera) {
+            &batch.events
+        } else {
+            selected.clear();
+            selected.extend(
+                batch
+                    .events
+                    .iter()
+                    .zip(&batch.cameras)
+                    .filter(|(_, &c)| c == opts.camera)
+                    .map(|(e, _)| *e),
+            );
+            &selected
+        };
+        let mut rest = events;
+        while !rest.is_empty() {
+            let (used, window) = raster.extend(rest);
+            if let Some(w) = window {
                 on_window(windows, &w)?;
                 windows += 1;
             }
+            rest = &rest[used..];
         }
     }
     if raster.buffered() > 0 || windows == 0 {

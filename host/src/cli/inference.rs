@@ -10,7 +10,7 @@ use evpose_core::simdr::argmax;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
-use crate::model::{self, quant, AlignedBlob, Logits, TractModel, TractOutput};
+use crate::model::{self, quant, AlignedBlob, CoreRunner, Logits, TractModel, TractOutput};
 use crate::npy;
 use crate::pipeline::{self, RasterOptions};
 
@@ -153,12 +153,14 @@ pub fn infer(a: &InferArgs) -> Result<()> {
         }
         Engine::F32 => {
             let blob = model::load_blob(&a.model)?;
-            let l = repeat(a.repeat, || model::run_core_f32(&blob, &points))?;
+            let mut runner = CoreRunner::new(&blob)?;
+            let l = repeat(a.repeat, || runner.run_f32(&points))?;
             write_logits(&l, &a.out_x, &a.out_y)
         }
         Engine::I8 => {
             let blob = model::load_blob(&a.model)?;
-            let l = repeat(a.repeat, || model::run_core_i8(&blob, &points))?;
+            let mut runner = CoreRunner::new(&blob)?;
+            let l = repeat(a.repeat, || runner.run_i8(model::kernels(), &points))?;
             write_logits(&l, &a.out_x, &a.out_y)
         }
     }
@@ -284,17 +286,19 @@ pub fn parity_report(
     float: Option<&AlignedBlob>,
 ) -> Result<ParityReport> {
     let mut tract = TractModel::load(onnx)?;
+    let mut core = CoreRunner::new(blob)?;
+    let mut float = float.map(CoreRunner::new).transpose()?;
     let mut r = ParityReport {
         inputs: inputs.len(),
         identical: 0,
         values: 0,
         mismatches: 0,
-        within_1px: float.map(|_| (0, 0)),
+        within_1px: float.as_ref().map(|_| (0, 0)),
     };
     let bar = ProgressBar::new(inputs.len() as u64);
     for pts in inputs {
-        let core = model::run_core_i8(blob, pts)?;
         let reference = tract.run_i32(pts)?;
+        let core = core.run_i8(model::kernels(), pts)?;
         ensure!(
             core.x.len() == reference.x.len() && core.y.len() == reference.y.len(),
             "output shapes differ"
@@ -314,8 +318,8 @@ pub fn parity_report(
         r.values += core.x.len() + core.y.len();
         r.mismatches += diff;
         r.identical += usize::from(diff == 0);
-        if let (Some(f), Some((close, total))) = (float, r.within_1px.as_mut()) {
-            let fl = model::run_core_f32(f, pts)?;
+        if let (Some(f), Some((close, total))) = (float.as_mut(), r.within_1px.as_mut()) {
+            let fl = f.run_f32(pts)?;
             let (c, t) = argmax_agreement(&core, &fl);
             *close += c;
             *total += t;

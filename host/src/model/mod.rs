@@ -10,7 +10,7 @@ use std::path::Path;
 
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use evpose_core::kernels::Kernels;
-use evpose_core::{run_f32, run_i8_with, scratch_words, Model};
+use evpose_core::{run_f32, run_i8_with, scratch_words, scratch_words_for_block, Model};
 use tract_core::internal::DimLike;
 use tract_onnx::prelude::*;
 use tract_onnx::tract_hir::infer::Factoid;
@@ -165,15 +165,72 @@ fn optimize(model: InferenceModel, n: usize) -> Result<std::sync::Arc<TypedSimpl
         .map_err(|e| anyhow!("tract cannot prepare the model for {n} points: {e:?}"))
 }
 
-/// Runs the core's f32 engine.
+/// A parsed model with its scratch memory, ready to run repeatedly (parsing checks the whole
+/// blob's CRC, so it happens once, at load).
+pub struct CoreRunner<'b> {
+    model: Model<'b>,
+    scratch_f32: Vec<f32>,
+    scratch_i32: Vec<i32>,
+}
+
+impl<'b> CoreRunner<'b> {
+    /// Parses and validates a blob.
+    pub fn new(blob: &'b AlignedBlob) -> Result<Self> {
+        let model = Model::parse(blob.bytes()).map_err(|e| anyhow!("{e}"))?;
+        Ok(Self {
+            scratch_f32: vec![0.0; scratch_words(&model)],
+            scratch_i32: vec![0; scratch_words_for_block(&model, evpose_core::infer::MAX_BLOCK)],
+            model,
+        })
+    }
+
+    /// The parsed model.
+    pub fn model(&self) -> &Model<'b> {
+        &self.model
+    }
+
+    fn outputs<T: Default + Clone>(&self) -> Logits<T> {
+        let (j, w, h) = (self.model.joints(), self.model.width(), self.model.height());
+        Logits {
+            joints: j,
+            x: vec![T::default(); j * w],
+            y: vec![T::default(); j * h],
+        }
+    }
+
+    /// Runs the f32 engine.
+    pub fn run_f32(&mut self, points: &[[f32; 5]]) -> Result<Logits<f32>> {
+        let mut out = self.outputs();
+        run_f32(
+            &self.model,
+            points,
+            &mut self.scratch_f32,
+            &mut out.x,
+            &mut out.y,
+        )
+        .map_err(|e| anyhow!("{e}"))?;
+        Ok(out)
+    }
+
+    /// Runs the int8 engine with the given kernels; outputs are the heads' int32 accumulators.
+    pub fn run_i8(&mut self, k: &Kernels, points: &[[f32; 5]]) -> Result<Logits<i32>> {
+        let mut out = self.outputs();
+        run_i8_with(
+            k,
+            &self.model,
+            points,
+            &mut self.scratch_i32,
+            &mut out.x,
+            &mut out.y,
+        )
+        .map_err(|e| anyhow!("{e}"))?;
+        Ok(out)
+    }
+}
+
+/// Runs the core's f32 engine once (parses the blob; use [`CoreRunner`] to run repeatedly).
 pub fn run_core_f32(blob: &AlignedBlob, points: &[[f32; 5]]) -> Result<Logits<f32>> {
-    let model = Model::parse(blob.bytes()).map_err(|e| anyhow!("{e}"))?;
-    let mut scratch = vec![0f32; scratch_words(&model)];
-    let (j, w, h) = (model.joints(), model.width(), model.height());
-    let mut x = vec![0f32; j * w];
-    let mut y = vec![0f32; j * h];
-    run_f32(&model, points, &mut scratch, &mut x, &mut y).map_err(|e| anyhow!("{e}"))?;
-    Ok(Logits { joints: j, x, y })
+    CoreRunner::new(blob)?.run_f32(points)
 }
 
 /// The int8 kernels for this CPU (detected once).
@@ -182,25 +239,19 @@ pub fn kernels() -> &'static Kernels {
     K.get_or_init(Kernels::detect)
 }
 
-/// Runs the core's int8 engine with this CPU's kernels; outputs are the heads' int32
+/// Runs the core's int8 engine once with this CPU's kernels; outputs are the heads' int32
 /// accumulators.
 pub fn run_core_i8(blob: &AlignedBlob, points: &[[f32; 5]]) -> Result<Logits<i32>> {
     run_core_i8_with(kernels(), blob, points)
 }
 
-/// Runs the core's int8 engine with the given kernels.
+/// Runs the core's int8 engine once with the given kernels.
 pub fn run_core_i8_with(
     k: &Kernels,
     blob: &AlignedBlob,
     points: &[[f32; 5]],
 ) -> Result<Logits<i32>> {
-    let model = Model::parse(blob.bytes()).map_err(|e| anyhow!("{e}"))?;
-    let mut scratch = vec![0i32; scratch_words(&model)];
-    let (j, w, h) = (model.joints(), model.width(), model.height());
-    let mut x = vec![0i32; j * w];
-    let mut y = vec![0i32; j * h];
-    run_i8_with(k, &model, points, &mut scratch, &mut x, &mut y).map_err(|e| anyhow!("{e}"))?;
-    Ok(Logits { joints: j, x, y })
+    CoreRunner::new(blob)?.run_i8(k, points)
 }
 
 /// Loads a model file: an ONNX export is imported into an f32 blob; a blob is read as is.

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Inference latency, one thread, all engines in one run on this machine:
+# tract f32, core f32, core int8 (evpose bench infer) and onnxruntime f32 / int8 (the peer).
+# usage: scripts/bench-infer.sh [MODEL.onnx] [ITERATIONS]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+model=${1:-../shared/reference/pointnet-paper.onnx}
+iters=${2:-20}
+python3 -c "import onnxruntime, onnx" 2>/dev/null || python3 -m pip install -q onnxruntime onnx numpy
+cargo build --release -q -p evpose-host
+evpose="${CARGO_TARGET_DIR:-target}/release/evpose"
+points=$(mktemp --suffix=.npy)
+# The same 2048-point input for every engine: the street-00 window sampled by our pipeline.
+"$evpose" raster --events tests/fixtures/street-00.events.npy --width 346 --height 260 --out "$points.all.npy" 2>/dev/null
+python3 - "$points.all.npy" "$points" <<'PY'
+import sys, numpy as np
+p = np.load(sys.argv[1]); rng = np.random.default_rng(0)
+idx = np.sort(rng.choice(len(p), 2048, replace=len(p) < 2048))
+np.save(sys.argv[2], p[idx].astype(np.float32))
+PY
+"$evpose" bench infer --model "$model" --points "$points" --iterations "$iters" --json > "$points.evpose.json"
+python3 scripts/bench_ort.py "$model" "$points" "$iters" > "$points.ort.json"
+python3 - "$points.evpose.json" "$points.ort.json" <<'PY'
+import json, sys
+e, o = json.load(open(sys.argv[1])), json.load(open(sys.argv[2]))
+rows = [("tract f32", e["tract_f32_ms"]), ("core f32", e["core_f32_ms"]),
+        (f"core int8 ({e['kernels']})", e["core_i8_ms"]), ("onnxruntime f32", o["ort_f32_ms"]),
+        ("onnxruntime int8 QDQ", o["ort_int8_qdq_ms"]), ("onnxruntime int8 QOperator", o["ort_int8_qoperator_ms"])]
+print(f"{e['points']} points, {e['macs']/1e9:.3f} GMAC, one thread, median ms (onnxruntime {o['onnxruntime_version']})")
+for name, ms in rows:
+    print(f"  {name:<34} {ms:8.2f} ms   core int8 is {ms / e['core_i8_ms']:.2f}x faster")
+PY
+rm -f "$points" "$points".*
