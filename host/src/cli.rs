@@ -32,6 +32,8 @@ pub enum Command {
     Convert(ConvertArgs),
     /// Rasterize events into event point clouds [x, y, t_avg, p_acc, cnt] (float32 .npy).
     Raster(RasterArgs),
+    /// Estimate 2-D joints per event window: rasterize, sample, run the model, decode.
+    Pose(inference::PoseArgs),
     /// Run a model on a point cloud: tract, the core's f32 engine or its int8 engine.
     Infer(inference::InferArgs),
     /// Calibrate and quantize a float ONNX model to an int8 blob and its ONNX twin.
@@ -135,6 +137,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Raster(a) => raster(&a),
         Command::Bench(BenchCommand::Raster(a)) => bench_raster(&a),
         Command::Bench(BenchCommand::Infer(a)) => inference::bench_infer(&a),
+        Command::Pose(a) => inference::pose(&a),
         Command::Infer(a) => inference::infer(&a),
         Command::Quantize(a) => inference::quantize(&a),
         Command::Parity(a) => inference::parity(&a),

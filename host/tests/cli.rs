@@ -119,3 +119,122 @@ fn unknown_format_and_missing_file_are_clear_errors() {
     evpose_host::npy::write(&bad_shape, &[2, 3], &[0f64; 6]).unwrap();
     assert!(evpose_err(&["info", s(&bad_shape)]).contains("(N, 4)"));
 }
+
+#[test]
+fn pose_runs_the_whole_pipeline_with_the_default_model() {
+    let out = evpose(&[
+        "pose",
+        "--events",
+        s(&fixture("street-00.events.npy")),
+        "--json",
+    ]);
+    let lines: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 1, "one 7,500-event window");
+    assert_eq!(lines[0]["points"], 2912);
+    let joints = lines[0]["joints"].as_array().unwrap();
+    assert_eq!(joints.len(), 13);
+    for j in joints {
+        assert!(j[0].as_u64().unwrap() < 346 && j[1].as_u64().unwrap() < 260);
+    }
+    // The same seed gives the same joints; the f32 model gives joints of the same shape.
+    assert_eq!(
+        evpose(&[
+            "pose",
+            "--events",
+            s(&fixture("street-00.events.npy")),
+            "--json"
+        ]),
+        out
+    );
+    let f = evpose(&[
+        "pose",
+        "--events",
+        s(&fixture("street-00.events.npy")),
+        "--model",
+        s(&fixture("pointnet-small.onnx")),
+        "--json",
+    ]);
+    assert_eq!(f.lines().count(), 1);
+}
+
+#[test]
+fn infer_engines_write_their_outputs() {
+    let pts = fixture("street-02.points.npy");
+    for (engine, model) in [
+        ("tract", fixture("pointnet-small.onnx")),
+        ("f32", fixture("pointnet-small.onnx")),
+    ] {
+        let (x, y) = (
+            tmp(&format!("{engine}-x.npy")),
+            tmp(&format!("{engine}-y.npy")),
+        );
+        evpose(&[
+            "infer",
+            "--model",
+            s(&model),
+            "--points",
+            s(&pts),
+            "--engine",
+            engine,
+            "--out-x",
+            s(&x),
+            "--out-y",
+            s(&y),
+            "--repeat",
+            "2",
+        ]);
+        let (shape, vx) = evpose_host::npy::read_exact::<f32>(&x).unwrap();
+        assert_eq!(shape, vec![13, 346]);
+        let (_, want) =
+            evpose_host::npy::read_exact::<f32>(&fixture("street-02.small.simdr_x.npy")).unwrap();
+        let max = want.iter().fold(0f32, |m, v| m.max(v.abs()));
+        assert!(
+            vx.iter()
+                .zip(&want)
+                .all(|(a, b)| (a - b).abs() <= 1e-4 * max),
+            "{engine}"
+        );
+        assert_eq!(
+            evpose_host::npy::read_exact::<f32>(&y).unwrap().0,
+            vec![13, 260]
+        );
+    }
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/pointnet-small.evq");
+    let (x, y) = (tmp("i8-x.npy"), tmp("i8-y.npy"));
+    evpose(&[
+        "infer",
+        "--model",
+        s(&model),
+        "--points",
+        s(&pts),
+        "--engine",
+        "i8",
+        "--out-x",
+        s(&x),
+        "--out-y",
+        s(&y),
+    ]);
+    assert_eq!(
+        evpose_host::npy::read_exact::<i32>(&x).unwrap().0,
+        vec![13, 346]
+    );
+    assert!(evpose_err(&[
+        "infer",
+        "--model",
+        s(&model),
+        "--points",
+        s(&pts),
+        "--engine",
+        "i8",
+        "--out-x",
+        s(&x),
+        "--out-y",
+        s(&y),
+        "--threads",
+        "2"
+    ])
+    .contains("--threads 1"));
+}
