@@ -53,9 +53,9 @@ pub struct InfoArgs {
     /// Print JSON instead of text.
     #[arg(long)]
     pub json: bool,
-    /// File format (default: detected from the header).
-    #[arg(long, value_enum)]
-    pub format: Option<Format>,
+    /// How to read the recording.
+    #[command(flatten)]
+    pub input: InputArgs,
 }
 
 /// Arguments of `evpose convert`.
@@ -63,15 +63,45 @@ pub struct InfoArgs {
 pub struct ConvertArgs {
     /// Recording to convert.
     pub file: PathBuf,
-    /// Output `.npy` file.
+    /// Output: `.npy` ((N, 4) float64 `[x, y, t_us, p]`, one camera) or `.aedat4` (one event
+    /// stream per camera, LZ4, readable by DV tools).
     #[arg(long)]
     pub out: PathBuf,
-    /// Camera to export from multi-camera recordings.
-    #[arg(long, default_value_t = 0)]
-    pub camera: u8,
+    /// Camera to export (default: camera 0 for `.npy`, every camera for `.aedat4`).
+    #[arg(long)]
+    pub camera: Option<u8>,
+    /// How to read the recording.
+    #[command(flatten)]
+    pub input: InputArgs,
+}
+
+/// How `info` and `convert` read a recording: the format, and what the file may not say.
+#[derive(Args, Clone, Debug, Default, PartialEq, Eq)]
+pub struct InputArgs {
     /// File format (default: detected from the header).
     #[arg(long, value_enum)]
     pub format: Option<Format>,
+    /// Sensor width, for files that state no size (with --height).
+    #[arg(long, requires = "height")]
+    pub width: Option<u16>,
+    /// Sensor height, for files that state no size (with --width).
+    #[arg(long, requires = "width")]
+    pub height: Option<u16>,
+    /// Unit of text timestamps (default: seconds if the first lines have a decimal point,
+    /// else microseconds).
+    #[arg(long, value_enum)]
+    pub time_unit: Option<io::TimeUnit>,
+}
+
+impl InputArgs {
+    /// The reader options these arguments give.
+    pub fn options(&self) -> io::OpenOptions {
+        io::OpenOptions {
+            format: self.format,
+            size: self.width.zip(self.height),
+            time_unit: self.time_unit,
+        }
+    }
 }
 
 /// Arguments of `evpose raster`.
@@ -149,10 +179,12 @@ pub fn run(cli: Cli) -> Result<()> {
 pub struct CameraSummary {
     /// Camera id.
     pub camera: u8,
-    /// Sensor width, if the file states it.
+    /// Sensor width, if the file states it (or `--width` gives it).
     pub width: Option<u16>,
-    /// Sensor height, if the file states it.
+    /// Sensor height, if the file states it (or `--height` gives it).
     pub height: Option<u16>,
+    /// Source name, if the file states one.
+    pub name: Option<String>,
     /// Events of this camera.
     pub events: u64,
     /// ON events.
@@ -172,19 +204,32 @@ pub struct CameraSummary {
 pub struct RecordingSummary {
     /// The file.
     pub file: String,
-    /// Its format.
+    /// Its format, as the reader settled it (e.g. `aedat2-dhp19` for a detected `aedat2`).
     pub format: Format,
     /// All events, all cameras.
     pub events: u64,
     /// One entry per camera.
     pub cameras: Vec<CameraSummary>,
+    /// What the reader skipped, repaired or assumed.
+    pub notes: io::ReadNotes,
 }
 
 /// Streams a recording once and summarizes it.
 pub fn summarize(path: &Path, format: Option<Format>) -> Result<RecordingSummary> {
-    let mut reader = io::open(path, format)?;
-    let info = reader.info().clone();
-    let mut cameras: Vec<CameraSummary> = info.cameras.iter().map(camera_summary).collect();
+    summarize_with(
+        path,
+        &io::OpenOptions {
+            format,
+            ..io::OpenOptions::default()
+        },
+    )
+}
+
+/// Streams a recording once and summarizes it, reading it with `opts`.
+pub fn summarize_with(path: &Path, opts: &io::OpenOptions) -> Result<RecordingSummary> {
+    let mut reader = io::open_with(path, opts)?;
+    let mut cameras: Vec<CameraSummary> =
+        reader.info().cameras.iter().map(camera_summary).collect();
     let mut batch = Batch::default();
     while reader
         .read_batch(&mut batch)
@@ -211,7 +256,14 @@ pub fn summarize(path: &Path, format: Option<Format>) -> Result<RecordingSummary
             s.last_t = Some(e.t);
         }
     }
+    // Cameras a reader declared while reading (AEDAT 3.1 sources) have their info now.
+    let info = reader.info();
     for c in &mut cameras {
+        if let Some(i) = info.cameras.iter().find(|i| i.id == c.camera) {
+            c.width = c.width.or(i.width);
+            c.height = c.height.or(i.height);
+            c.name = c.name.take().or_else(|| i.name.clone());
+        }
         c.duration_us = c.first_t.zip(c.last_t).map(|(a, b)| b - a);
     }
     cameras.sort_by_key(|c| c.camera);
@@ -220,6 +272,7 @@ pub fn summarize(path: &Path, format: Option<Format>) -> Result<RecordingSummary
         format: info.format,
         events: cameras.iter().map(|c| c.events).sum(),
         cameras,
+        notes: reader.notes(),
     })
 }
 
@@ -228,12 +281,13 @@ fn camera_summary(c: &CameraInfo) -> CameraSummary {
         camera: c.id,
         width: c.width,
         height: c.height,
+        name: c.name.clone(),
         ..CameraSummary::default()
     }
 }
 
 fn info(a: &InfoArgs) -> Result<()> {
-    let s = summarize(&a.file, a.format)?;
+    let s = summarize_with(&a.file, &a.input.options())?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&s)?);
         return Ok(());
@@ -247,6 +301,9 @@ fn info(a: &InfoArgs) -> Result<()> {
             _ => "unknown".into(),
         };
         println!("camera {}:", c.camera);
+        if let Some(name) = &c.name {
+            println!("  name:       {name}");
+        }
         println!("  resolution: {size}");
         println!("  events:     {} ({} on, {} off)", c.events, c.on, c.off);
         if let (Some(f), Some(l), Some(d)) = (c.first_t, c.last_t, c.duration_us) {
@@ -255,12 +312,64 @@ fn info(a: &InfoArgs) -> Result<()> {
             println!("  duration:   {:.6} s", d as f64 / 1e6);
         }
     }
+    let n = &s.notes;
+    for (count, what) in [
+        (n.skipped_records, "non-event records skipped"),
+        (n.skipped_packets, "non-event packets skipped"),
+        (
+            n.dropped_events,
+            "events dropped before the stream gave their time base",
+        ),
+        (n.timestamp_wraps, "timestamp counter wraps unwrapped"),
+    ] {
+        if count > 0 {
+            println!("note:       {count} {what}");
+        }
+    }
+    for a in &n.assumptions {
+        println!("assumed:    {a}");
+    }
     Ok(())
 }
 
 fn convert(a: &ConvertArgs) -> Result<()> {
-    let n = pipeline::count_events(&a.file, a.format, a.camera)?;
-    let mut reader = io::open(&a.file, a.format)?;
+    let ext = a
+        .out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("npy") => convert_npy(a),
+        Some("aedat4") => convert_aedat4(a),
+        _ => bail!(
+            "{}: unknown output format; name the output .npy or .aedat4",
+            a.out.display()
+        ),
+    }
+}
+
+fn convert_npy(a: &ConvertArgs) -> Result<()> {
+    let opts = a.input.options();
+    let camera = a.camera.unwrap_or(0);
+    let summary = summarize_with(&a.file, &opts)?;
+    let n = summary
+        .cameras
+        .iter()
+        .find(|c| c.camera == camera)
+        .map_or(0, |c| c.events);
+    if n == 0 && summary.events > 0 {
+        let ids: Vec<String> = summary
+            .cameras
+            .iter()
+            .filter(|c| c.events > 0)
+            .map(|c| c.camera.to_string())
+            .collect();
+        eprintln!(
+            "warning: camera {camera} has no events (cameras with events: {}); pass --camera",
+            ids.join(", ")
+        );
+    }
+    let mut reader = io::open_with(&a.file, &opts)?;
     let file = std::fs::File::create(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     use npyz::WriterBuilder;
@@ -271,9 +380,12 @@ fn convert(a: &ConvertArgs) -> Result<()> {
         .begin_nd()?;
     let mut batch = Batch::default();
     let mut written = 0u64;
-    while reader.read_batch(&mut batch)? {
+    while reader
+        .read_batch(&mut batch)
+        .with_context(|| format!("{}", a.file.display()))?
+    {
         for (e, &cam) in batch.events.iter().zip(&batch.cameras) {
-            if cam == a.camera {
+            if cam == camera {
                 w.extend([
                     f64::from(e.x),
                     f64::from(e.y),
@@ -288,7 +400,75 @@ fn convert(a: &ConvertArgs) -> Result<()> {
         bail!("{} changed while converting", a.file.display());
     }
     w.finish()?;
-    eprintln!("wrote {n} events to {}", a.out.display());
+    eprintln!("wrote {n} events of camera {camera} to {}", a.out.display());
+    Ok(())
+}
+
+fn convert_aedat4(a: &ConvertArgs) -> Result<()> {
+    use io::aedat4::{Aedat4Writer, Compression};
+    let opts = a.input.options();
+    let summary = summarize_with(&a.file, &opts)?;
+    let mut cameras: Vec<CameraInfo> = summary
+        .cameras
+        .iter()
+        .filter(|c| a.camera.is_none_or(|want| want == c.camera))
+        .map(|c| CameraInfo {
+            id: c.camera,
+            width: c.width,
+            height: c.height,
+            name: c.name.clone(),
+        })
+        .collect();
+    if cameras.is_empty() {
+        let id = a.camera.unwrap_or(0);
+        let (width, height) = (opts.size.map(|s| s.0), opts.size.map(|s| s.1));
+        cameras.push(CameraInfo {
+            id,
+            width,
+            height,
+            name: None,
+        });
+    }
+    if cameras.iter().any(|c| c.width.is_none()) {
+        eprintln!(
+            "warning: {} states no sensor size; DV tools expect one: pass --width and --height",
+            a.file.display()
+        );
+    }
+    let file = std::fs::File::create(&a.out)
+        .with_context(|| format!("cannot create {}", a.out.display()))?;
+    let mut w = Aedat4Writer::new(std::io::BufWriter::new(file), &cameras, Compression::Lz4)?;
+    let mut reader = io::open_with(&a.file, &opts)?;
+    let mut batch = Batch::default();
+    let mut picked = Batch::default();
+    let mut written = 0u64;
+    while reader
+        .read_batch(&mut batch)
+        .with_context(|| format!("{}", a.file.display()))?
+    {
+        let part = match a.camera {
+            None => &batch,
+            Some(want) => {
+                picked.clear();
+                for (e, &cam) in batch.events.iter().zip(&batch.cameras) {
+                    if cam == want {
+                        picked.push(cam, *e);
+                    }
+                }
+                &picked
+            }
+        };
+        w.write(part)
+            .with_context(|| format!("cannot write {}", a.out.display()))?;
+        written += part.len() as u64;
+    }
+    w.finish()?;
+    let ids: Vec<String> = cameras.iter().map(|c| c.id.to_string()).collect();
+    eprintln!(
+        "wrote {written} events of camera(s) {} to {} (AEDAT 4.0, LZ4; stream i holds the i-th of them)",
+        ids.join(", "),
+        a.out.display()
+    );
     Ok(())
 }
 

@@ -3,6 +3,9 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+#[path = "support/encoders.rs"]
+mod encoders;
+
 fn evpose(args: &[&str]) -> String {
     let out = Command::new(env!("CARGO_BIN_EXE_evpose"))
         .args(args)
@@ -118,6 +121,210 @@ fn unknown_format_and_missing_file_are_clear_errors() {
     let bad_shape = tmp("bad.npy");
     evpose_host::npy::write(&bad_shape, &[2, 3], &[0f64; 6]).unwrap();
     assert!(evpose_err(&["info", s(&bad_shape)]).contains("(N, 4)"));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Event formats (issue 5): info per camera, convert from any format, fallbacks, damage.
+
+fn json(args: &[&str]) -> serde_json::Value {
+    serde_json::from_str(&evpose(args)).unwrap()
+}
+
+/// Reads every event of a recording with the library: (camera, event).
+fn read_all(path: &Path) -> Vec<(u8, evpose_core::Event)> {
+    let mut r = evpose_host::io::open(path, None).unwrap();
+    let mut b = evpose_host::io::Batch::default();
+    let mut out = Vec::new();
+    while r.read_batch(&mut b).unwrap() {
+        out.extend(b.cameras.iter().copied().zip(b.events.iter().copied()));
+    }
+    out
+}
+
+#[test]
+fn info_json_per_camera_for_dhp19() {
+    let events = encoders::synthetic(3000, 346, 260, 4, 5_000);
+    let path = tmp("dhp19.aedat");
+    std::fs::write(&path, encoders::aedat2_davis346(&events, true)).unwrap();
+    let v = json(&["info", s(&path), "--json"]);
+    assert_eq!(v["format"], "aedat2-dhp19");
+    assert_eq!(v["events"], 3000);
+    let cams = v["cameras"].as_array().unwrap();
+    assert_eq!(cams.len(), 4);
+    for (c, cam) in cams.iter().enumerate() {
+        let mine: Vec<_> = events.iter().filter(|e| usize::from(e.cam) == c).collect();
+        assert_eq!(cam["camera"], c);
+        assert_eq!(cam["width"], 346);
+        assert_eq!(cam["height"], 260);
+        assert_eq!(cam["events"], mine.len());
+        assert_eq!(cam["on"], mine.iter().filter(|e| e.on).count());
+        assert_eq!(cam["off"], mine.iter().filter(|e| !e.on).count());
+        assert_eq!(cam["first_t"], mine[0].t);
+        assert_eq!(cam["last_t"], mine[mine.len() - 1].t);
+    }
+    assert!(v["notes"]["assumptions"][0]
+        .as_str()
+        .unwrap()
+        .contains("MultiDavis346BCameraChip"));
+}
+
+#[test]
+fn convert_dhp19_to_npy_per_camera_and_to_aedat4() {
+    let events = encoders::synthetic(2000, 346, 260, 4, 1_000_000);
+    let path = tmp("dhp19-convert.aedat");
+    std::fs::write(&path, encoders::aedat2_davis346(&events, true)).unwrap();
+
+    let c2 = tmp("dhp19-cam2.npy");
+    evpose(&["convert", s(&path), "--out", s(&c2), "--camera", "2"]);
+    let (shape, rows) = evpose_host::npy::read_exact::<f64>(&c2).unwrap();
+    let want: Vec<f64> = events
+        .iter()
+        .filter(|e| e.cam == 2)
+        .flat_map(|e| {
+            [
+                f64::from(e.x),
+                f64::from(e.y),
+                e.t as f64,
+                f64::from(u8::from(e.on)),
+            ]
+        })
+        .collect();
+    assert_eq!(shape, [want.len() as u64 / 4, 4]);
+    assert_eq!(rows, want);
+
+    // AEDAT 4: one stream per camera, in camera order, so the ids survive.
+    let all = tmp("dhp19-all.aedat4");
+    evpose(&["convert", s(&path), "--out", s(&all)]);
+    let got = read_all(&all);
+    let want: Vec<_> = events
+        .iter()
+        .map(|e| (e.cam, evpose_core::Event::new(e.x, e.y, e.t, e.on)))
+        .collect();
+    assert_eq!(got.len(), want.len());
+    for cam in 0..4 {
+        let a: Vec<_> = got.iter().filter(|(c, _)| *c == cam).collect();
+        let b: Vec<_> = want.iter().filter(|(c, _)| *c == cam).collect();
+        assert_eq!(a, b, "camera {cam}");
+    }
+    let v = json(&["info", s(&all), "--json"]);
+    assert_eq!(v["format"], "aedat4");
+    assert_eq!(v["cameras"].as_array().unwrap().len(), 4);
+    assert_eq!(v["cameras"][3]["width"], 346);
+
+    // One camera to AEDAT 4: a single stream.
+    let one = tmp("dhp19-cam1.aedat4");
+    evpose(&["convert", s(&path), "--out", s(&one), "--camera", "1"]);
+    let got = read_all(&one);
+    assert!(got.iter().all(|(c, _)| *c == 0));
+    assert_eq!(got.len(), events.iter().filter(|e| e.cam == 1).count());
+
+    assert!(evpose_err(&["convert", s(&path), "--out", s(&tmp("x.csv"))]).contains(".aedat4"));
+}
+
+#[test]
+fn aedat4_round_trip_through_convert() {
+    let real = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/aedat4/davis346-street-head.aedat4");
+    let out = tmp("street-head-copy.aedat4");
+    evpose(&["convert", s(&real), "--out", s(&out)]);
+    let a = read_all(&real);
+    assert!(!a.is_empty());
+    assert_eq!(read_all(&out), a);
+    let v = json(&["info", s(&out), "--json"]);
+    assert_eq!(v["cameras"][0]["width"], 346);
+    assert_eq!(
+        v["cameras"][0]["name"],
+        json(&["info", s(&real), "--json"])["cameras"][0]["name"]
+    );
+}
+
+#[test]
+fn text_and_raw_need_no_header_size_or_unit_with_flags() {
+    // RPG text, seconds detected; converted to npy.
+    let events = encoders::synthetic(500, 240, 180, 1, 7_000_000);
+    let txt = tmp("events.txt");
+    std::fs::write(&txt, encoders::text_seconds(&events)).unwrap();
+    let npy = tmp("events-from-text.npy");
+    evpose(&["convert", s(&txt), "--out", s(&npy)]);
+    let (_, rows) = evpose_host::npy::read_exact::<f64>(&npy).unwrap();
+    assert_eq!(rows[2], events[0].t as f64);
+    assert_eq!(rows[rows.len() - 2], events[499].t as f64);
+    // Integer timestamps with --time-unit ms.
+    let ms = tmp("ms.csv");
+    std::fs::write(&ms, "t,x,y,p\n5,1,2,1\n6,3,4,0\n").unwrap();
+    let v = json(&["info", s(&ms), "--json", "--time-unit", "ms"]);
+    assert_eq!(v["format"], "text");
+    assert_eq!(v["cameras"][0]["first_t"], 5000);
+    assert_eq!(v["cameras"][0]["last_t"], 6000);
+    // EVT 3.0 without a size: --width/--height fill it in and check the pixels.
+    let mut raw = encoders::raw_header(&["evt 3.0", "end"]);
+    raw.extend_from_slice(&encoders::evt3_body(&encoders::synthetic(
+        300, 640, 480, 1, 0,
+    )));
+    let raw_path = tmp("nosize.raw");
+    std::fs::write(&raw_path, &raw).unwrap();
+    let v = json(&["info", s(&raw_path), "--json"]);
+    assert_eq!(v["format"], "evt3");
+    assert!(v["cameras"][0]["width"].is_null());
+    let v = json(&[
+        "info",
+        s(&raw_path),
+        "--json",
+        "--width",
+        "640",
+        "--height",
+        "480",
+    ]);
+    assert_eq!(v["cameras"][0]["width"], 640);
+    assert_eq!(v["events"], 300);
+    let small = evpose_err(&["info", s(&raw_path), "--width", "10", "--height", "10"]);
+    assert!(small.contains("outside the 10x10 sensor"), "{small}");
+}
+
+#[test]
+fn damaged_files_are_errors_naming_the_offset() {
+    let events = encoders::synthetic(100, 346, 260, 4, 0);
+    let bytes = encoders::aedat2_davis346(&events, true);
+    let cut = tmp("cut.aedat");
+    std::fs::write(&cut, &bytes[..bytes.len() - 3]).unwrap();
+    let err = evpose_err(&["info", s(&cut)]);
+    let last = bytes.len() - 8;
+    assert!(
+        err.contains(&format!(
+            "at byte {last}: file ends inside an AEDAT 2.0 event record"
+        )),
+        "{err}"
+    );
+    // The AEDAT 2.0 sensor cannot be guessed: refused with the way out.
+    let mut anon = encoders::aedat2_header(None, true);
+    encoders::aedat2_record(&mut anon, encoders::davis_addr(1, 2, true, 260), 5);
+    let anon_path = tmp("anon.aedat");
+    std::fs::write(&anon_path, &anon).unwrap();
+    assert!(evpose_err(&["info", s(&anon_path)]).contains("--format aedat2-davis346"));
+    let v = json(&[
+        "info",
+        s(&anon_path),
+        "--json",
+        "--format",
+        "aedat2-davis346",
+    ]);
+    assert_eq!(v["cameras"][0]["first_t"], 5);
+    // Text output lists the recoveries.
+    let mut special = encoders::aedat2_header(Some("DAVIS240C"), true);
+    encoders::aedat2_record(&mut special, 0x400, 1);
+    encoders::aedat2_record(&mut special, encoders::davis_addr(1, 2, true, 180), 2);
+    let sp = tmp("special.aedat");
+    std::fs::write(&sp, &special).unwrap();
+    let text = evpose(&["info", s(&sp)]);
+    assert!(text.contains("format:     aedat2-davis240"), "{text}");
+    assert!(
+        text.contains("note:       1 non-event records skipped"),
+        "{text}"
+    );
+    assert!(
+        text.contains("assumed:    sensor from the header"),
+        "{text}"
+    );
 }
 
 #[test]

@@ -2,6 +2,22 @@
 //!
 //! Every reader yields events in batches of bounded size, so memory stays constant whatever the
 //! file size. Damaged input gives a [`ReadError`] that names the byte offset, never a panic.
+//!
+//! | module | formats |
+//! |---|---|
+//! | [`npy`] | `.npy` (N, 4) `[x, y, t_us, p]` |
+//! | [`aedat4`] | iniVation DV AEDAT 4.0 (reader and writer) |
+//! | [`aedat2`] | jAER AEDAT 2.0: DAVIS346/240, DVS128, DHP19 (four cameras) |
+//! | [`aedat3`] | cAER / libcaer AEDAT 3.1 |
+//! | [`evt`] | Prophesee RAW, EVT 2.0 and EVT 3.0 |
+//! | [`dat`] | Prophesee `.dat` CD events |
+//! | [`text`] | text / CSV `t x y p` |
+//!
+//! Where a reader recovers instead of failing (records that are not polarity events, counter
+//! wraps, events before a time base), it says so in [`EventReader::notes`]; every recovery is
+//! documented in its module. Header parsing is bounded ([`MAX_HEADER_BYTES`],
+//! [`MAX_HEADER_LINE_BYTES`]), and no size field in a file makes a reader allocate more than a
+//! fixed bound.
 
 use std::fs::File;
 use std::io::{BufReader, Read};
@@ -9,8 +25,16 @@ use std::path::Path;
 
 use evpose_core::Event;
 
+pub mod aedat2;
+pub mod aedat3;
 pub mod aedat4;
+pub mod dat;
+pub mod evt;
 pub mod npy;
+mod source;
+pub mod text;
+
+pub use source::{MAX_HEADER_BYTES, MAX_HEADER_LINE_BYTES};
 
 /// Events per batch that readers aim for.
 pub const BATCH_EVENTS: usize = 65_536;
@@ -49,6 +73,11 @@ impl Batch {
 }
 
 /// File formats the readers understand.
+///
+/// [`Format::detect`] recognises every format from the first bytes of a file; the variants that
+/// detection never returns (`aedat2-davis346`, `evt3`, …) exist so that `--format` can state
+/// what a header leaves open or gets wrong. Readers report the format they settled on in
+/// [`StreamInfo::format`] (for example `aedat2-davis346` for a file detected as `aedat2`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Format {
@@ -56,27 +85,174 @@ pub enum Format {
     Npy,
     /// iniVation DV AEDAT 4.0.
     Aedat4,
+    /// jAER AEDAT 2.0, sensor named by the header's `# AEChip:` line.
+    Aedat2,
+    /// jAER AEDAT 2.0 from a DAVIS346 (346 × 260).
+    #[value(name = "aedat2-davis346")]
+    #[serde(rename = "aedat2-davis346")]
+    Aedat2Davis346,
+    /// jAER AEDAT 2.0 from a DAVIS240 (240 × 180).
+    #[value(name = "aedat2-davis240")]
+    #[serde(rename = "aedat2-davis240")]
+    Aedat2Davis240,
+    /// jAER AEDAT 2.0 from a DVS128 (128 × 128).
+    #[value(name = "aedat2-dvs128")]
+    #[serde(rename = "aedat2-dvs128")]
+    Aedat2Dvs128,
+    /// DHP19 raw data: AEDAT 2.0 with four DAVIS346 cameras, camera id in address bits 0–3.
+    #[value(name = "aedat2-dhp19")]
+    #[serde(rename = "aedat2-dhp19")]
+    Aedat2Dhp19,
+    /// cAER / libcaer AEDAT 3.1.
+    Aedat3,
+    /// Prophesee RAW, encoding named by the header (`% evt 2.0` / `% evt 3.0`).
+    Raw,
+    /// Prophesee RAW, EVT 2.0 encoding.
+    Evt2,
+    /// Prophesee RAW, EVT 3.0 encoding.
+    Evt3,
+    /// Prophesee `.dat` CD events.
+    Dat,
+    /// Text / CSV, one event per line: `t x y p` (or the columns a header row names).
+    #[value(alias = "csv", alias = "txt")]
+    Text,
 }
 
 impl Format {
-    /// Guesses the format from the first bytes of a file.
+    /// Every format, in declaration order.
+    pub const ALL: [Self; 13] = [
+        Self::Npy,
+        Self::Aedat4,
+        Self::Aedat2,
+        Self::Aedat2Davis346,
+        Self::Aedat2Davis240,
+        Self::Aedat2Dvs128,
+        Self::Aedat2Dhp19,
+        Self::Aedat3,
+        Self::Raw,
+        Self::Evt2,
+        Self::Evt3,
+        Self::Dat,
+        Self::Text,
+    ];
+
+    /// Guesses the format from the first bytes of a file (pass up to [`DETECT_BYTES`]).
+    ///
+    /// | first bytes | format |
+    /// |---|---|
+    /// | `\x93NUMPY` | `npy` |
+    /// | `#!AER-DAT4` | `aedat4` |
+    /// | `#!AER-DAT3` | `aedat3` |
+    /// | `#!AER-DAT` (2.0; 1.0 is refused by the reader) | `aedat2` |
+    /// | `%` lines with `% evt …` or `% format EVT…` | `raw` |
+    /// | other `%` lines | `dat` (or `text` when printable text follows them) |
+    /// | printable text whose first data line has four numbers | `text` |
     pub fn detect(head: &[u8]) -> Option<Self> {
         if head.starts_with(b"\x93NUMPY") {
             Some(Self::Npy)
-        } else if head.starts_with(b"#!AER-DAT4.0") {
+        } else if head.starts_with(b"#!AER-DAT4") {
             Some(Self::Aedat4)
+        } else if head.starts_with(b"#!AER-DAT3") {
+            Some(Self::Aedat3)
+        } else if head.starts_with(b"#!AER-DAT") {
+            Some(Self::Aedat2)
+        } else if head.starts_with(b"%") {
+            Some(evt::detect_percent_header(head))
+        } else if text::looks_like_text(head) {
+            Some(Self::Text)
         } else {
             None
         }
     }
 
-    /// Human-readable name.
+    /// Human-readable name (the `--format` value).
     pub fn name(self) -> &'static str {
         match self {
             Self::Npy => "npy",
             Self::Aedat4 => "aedat4",
+            Self::Aedat2 => "aedat2",
+            Self::Aedat2Davis346 => "aedat2-davis346",
+            Self::Aedat2Davis240 => "aedat2-davis240",
+            Self::Aedat2Dvs128 => "aedat2-dvs128",
+            Self::Aedat2Dhp19 => "aedat2-dhp19",
+            Self::Aedat3 => "aedat3",
+            Self::Raw => "raw",
+            Self::Evt2 => "evt2",
+            Self::Evt3 => "evt3",
+            Self::Dat => "dat",
+            Self::Text => "text",
         }
     }
+}
+
+/// Bytes [`open`] reads for [`Format::detect`].
+pub const DETECT_BYTES: usize = 64 << 10;
+
+/// Unit of text timestamps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TimeUnit {
+    /// Seconds (the RPG event-camera datasets).
+    S,
+    /// Milliseconds.
+    Ms,
+    /// Microseconds.
+    Us,
+    /// Nanoseconds (rounded to the nearest microsecond).
+    Ns,
+}
+
+impl TimeUnit {
+    /// Power of ten that turns a value in this unit into microseconds.
+    pub fn exponent_to_us(self) -> i32 {
+        match self {
+            Self::S => 6,
+            Self::Ms => 3,
+            Self::Us => 0,
+            Self::Ns => -3,
+        }
+    }
+
+    /// Short name (`s`, `ms`, `us`, `ns`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::S => "s",
+            Self::Ms => "ms",
+            Self::Us => "us",
+            Self::Ns => "ns",
+        }
+    }
+}
+
+/// What the caller knows that a file may not say; see [`open_with`].
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct OpenOptions {
+    /// The format; `None` detects it from the first bytes.
+    pub format: Option<Format>,
+    /// Sensor size (width, height) for files that state none. A size the file states wins.
+    pub size: Option<(u16, u16)>,
+    /// Unit of text timestamps; `None` detects it (see [`text`]).
+    pub time_unit: Option<TimeUnit>,
+}
+
+/// What a reader repaired, skipped or assumed: the documented recoveries, with counts.
+///
+/// Each count only grows while reading; read it after the last batch for the whole file.
+#[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct ReadNotes {
+    /// Records that are not polarity events, skipped: APS samples, IMU samples, triggers and
+    /// special events, invalid (filtered) AEDAT 3 events, EVT "other" words.
+    pub skipped_records: u64,
+    /// Whole packets skipped: AEDAT 3 packets of other event types, AEDAT 4 packets of
+    /// non-event streams.
+    pub skipped_packets: u64,
+    /// Events dropped because the stream had not yet given their time base or row (EVT 2.0 /
+    /// 3.0 events before the first time-high or y-address word, as Prophesee's decoders do).
+    pub dropped_events: u64,
+    /// Wraps of the file's timestamp counter that were unwrapped.
+    pub timestamp_wraps: u64,
+    /// Decisions taken where the file is ambiguous (sensor model, time unit, …).
+    pub assumptions: Vec<String>,
 }
 
 /// What a recording says about one of its cameras.
@@ -138,36 +314,126 @@ pub trait EventReader {
     /// Clears `batch` and fills it with the next events. Returns `Ok(false)` at the end of the
     /// stream (with `batch` empty).
     fn read_batch(&mut self, batch: &mut Batch) -> Result<bool, ReadError>;
+
+    /// What the reader skipped, repaired or assumed so far.
+    fn notes(&self) -> ReadNotes {
+        ReadNotes::default()
+    }
 }
 
 /// Opens a recording, detecting its format from its first bytes unless `format` is given.
 pub fn open(path: &Path, format: Option<Format>) -> anyhow::Result<Box<dyn EventReader>> {
+    open_with(
+        path,
+        &OpenOptions {
+            format,
+            ..OpenOptions::default()
+        },
+    )
+}
+
+/// Opens a recording with [`OpenOptions`]: the format (detected from the first
+/// [`DETECT_BYTES`] unless given), a fallback sensor size and the text time unit.
+///
+/// A detected `dat` whose file name ends in `.raw` is opened as `raw` (old Prophesee RAW files
+/// may lack the `% evt` line; the RAW reader then asks for `--format evt2|evt3`).
+pub fn open_with(path: &Path, opts: &OpenOptions) -> anyhow::Result<Box<dyn EventReader>> {
     use anyhow::Context;
-    let format = match format {
+    let format = match opts.format {
         Some(f) => f,
         None => {
             let mut file =
                 File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-            let mut head = [0u8; 16];
+            let mut head = vec![0u8; DETECT_BYTES];
             let n = read_up_to(&mut file, &mut head)?;
-            Format::detect(&head[..n]).with_context(|| {
+            let detected = Format::detect(&head[..n]).with_context(|| {
                 format!(
                     "{}: unknown event file format (first bytes {:02x?}); pass --format",
                     path.display(),
-                    &head[..n]
+                    &head[..n.min(16)]
                 )
-            })?
+            })?;
+            let raw_name = path
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("raw"));
+            if detected == Format::Dat && raw_name {
+                Format::Raw
+            } else {
+                detected
+            }
         }
     };
     let file = BufReader::with_capacity(
         1 << 16,
         File::open(path).with_context(|| format!("cannot open {}", path.display()))?,
     );
+    let size = opts.size;
     let reader: Box<dyn EventReader> = match format {
-        Format::Npy => Box::new(npy::NpyReader::new(file)?),
-        Format::Aedat4 => Box::new(aedat4::Aedat4Reader::new(file)?),
+        Format::Npy => Box::new(WithSize::new(npy::NpyReader::new(file)?, size)),
+        Format::Aedat4 => Box::new(WithSize::new(aedat4::Aedat4Reader::new(file)?, size)),
+        Format::Aedat2
+        | Format::Aedat2Davis346
+        | Format::Aedat2Davis240
+        | Format::Aedat2Dvs128
+        | Format::Aedat2Dhp19 => Box::new(aedat2::Aedat2Reader::new(file, format, size)?),
+        Format::Aedat3 => Box::new(aedat3::Aedat3Reader::new(file, size)?),
+        Format::Raw | Format::Evt2 | Format::Evt3 => {
+            Box::new(evt::EvtReader::new(file, format, size)?)
+        }
+        Format::Dat => Box::new(dat::DatReader::new(file, size)?),
+        Format::Text => Box::new(text::TextReader::new(file, opts.time_unit, size)?),
     };
     Ok(reader)
+}
+
+/// A reader whose header may lack the sensor size, with the caller's fallback filled in.
+struct WithSize<R> {
+    inner: R,
+    info: StreamInfo,
+}
+
+impl<R: EventReader> WithSize<R> {
+    fn new(inner: R, size: Option<(u16, u16)>) -> Self {
+        let mut info = inner.info().clone();
+        fill_size(&mut info, size);
+        Self { inner, info }
+    }
+}
+
+impl<R: EventReader> EventReader for WithSize<R> {
+    fn info(&self) -> &StreamInfo {
+        &self.info
+    }
+
+    fn read_batch(&mut self, batch: &mut Batch) -> Result<bool, ReadError> {
+        self.inner.read_batch(batch)
+    }
+
+    fn notes(&self) -> ReadNotes {
+        self.inner.notes()
+    }
+}
+
+/// Gives every camera without a size the fallback `size`; with no camera at all, declares
+/// camera 0 with it.
+pub(crate) fn fill_size(info: &mut StreamInfo, size: Option<(u16, u16)>) {
+    let Some((w, h)) = size else {
+        return;
+    };
+    if info.cameras.is_empty() {
+        info.cameras.push(CameraInfo {
+            id: 0,
+            width: None,
+            height: None,
+            name: None,
+        });
+    }
+    for c in &mut info.cameras {
+        if c.width.is_none() || c.height.is_none() {
+            c.width = Some(w);
+            c.height = Some(h);
+        }
+    }
 }
 
 /// Reads until `buf` is full or the input ends; returns the bytes read.

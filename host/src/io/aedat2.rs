@@ -1,0 +1,435 @@
+//! jAER AEDAT 2.0, including the DHP19 four-camera recordings.
+//!
+//! # Layout
+//!
+//! ```text
+//! "#!AER-DAT2.0\r\n"
+//! more "#…\r\n" header lines (comments, "# AEChip: <Java class>", often jAER's preferences XML),
+//!     optionally ending with "#End Of ASCII Header\r\n"
+//! 8-byte records until EOF: u32 BE address, u32 BE timestamp (µs)
+//! ```
+//!
+//! The header ends after `#End Of ASCII Header`, or at the first line that does not start with
+//! `#` (as jAER and its MATLAB and Python readers decide) or that holds control bytes (binary
+//! records whose first address byte happens to be `#` = 0x23). Header parsing is bounded:
+//! [`MAX_HEADER_BYTES`](super::MAX_HEADER_BYTES) in all, lines of at most
+//! [`MAX_HEADER_LINE_BYTES`](super::MAX_HEADER_LINE_BYTES).
+//!
+//! # Which sensor
+//!
+//! The address layout depends on the sensor, which the file names only in its `# AEChip:` line
+//! (a Java class such as `eu.seebetter.ini.chips.davis.DAVIS346B`; DHP19 files say
+//! `MultiDavis346BCameraChip`). With `--format aedat2` (what detection gives) the reader takes
+//! the sensor from that line, matching the class name case-insensitively:
+//!
+//! | class name contains | sensor |
+//! |---|---|
+//! | `multidavis346` | DHP19: four DAVIS346 cameras, [`Format::Aedat2Dhp19`] |
+//! | `dvs128`, `tmpdiff128` | DVS128 layout, [`Format::Aedat2Dvs128`] |
+//! | `davis346` / `davis240`, `sbret1x`/`sbret2x` | DAVIS layout, 346 × 260 / 240 × 180 |
+//! | `davis128`, `davis208`, `davis640` | DAVIS layout, 128 × 128 / 208 × 192 / 640 × 480 |
+//! | other `davis` | DAVIS layout; the size must come from `--width/--height` |
+//!
+//! A file without a recognisable `AEChip` line is refused (guessing the layout would misread
+//! it silently); `--format aedat2-davis346|aedat2-davis240|aedat2-dvs128|aedat2-dhp19` states
+//! the sensor and overrides the header (the disagreement is recorded in
+//! [`ReadNotes::assumptions`]). With an explicit sensor a file may also lack the header.
+//!
+//! # Addresses
+//!
+//! * DAVIS (jAER `DavisBaseCamera`): bit 31 = 1 is an APS or IMU sample, bit 10 = 1 a special
+//!   event; both clear is a polarity event with y = bits 22–30, x = bits 12–21, ON = bit 11.
+//!   jAER's origin is bottom-left, so `y = height - 1 - y_raw` gives the top-left origin of
+//!   [`Event`]. x is kept as is.
+//! * DHP19: DAVIS layout, camera id = bits 0–3 (0–3; anything else is an error), y flipped the
+//!   same way. DHP19's own frame generation also mirrors x (`346 - x`) when it builds its
+//!   images; this reader does not: it delivers the sensor's orientation.
+//! * DVS128 (jAER `Tmpdiff128`, libcaer `dvs128`): bits 15–31 set is a sync / special event;
+//!   otherwise x = 127 − bits 1–7, y = bits 8–14, and the event is ON when bit 0 is **0** (both
+//!   jAER and libcaer invert the polarity bit). libcaer, whose origin is top-left, keeps y.
+//!
+//! # Damage and recovery
+//!
+//! Non-polarity records are skipped and counted ([`ReadNotes::skipped_records`]). Timestamps
+//! are a 32-bit counter: a step back by more than 2³¹ µs is a wrap (counted in
+//! [`ReadNotes::timestamp_wraps`]) and later times get 2³² µs more each wrap. A pixel outside
+//! the sensor, a DHP19 camera id above 3, and a file that ends inside a record are errors
+//! naming the record's offset.
+
+use std::io::Read;
+
+use evpose_core::Event;
+
+use super::source::{known_sensor_size, out_of_sensor, time_overflow, Source, Unwrapper};
+use super::{
+    Batch, CameraInfo, EventReader, Format, ReadError, ReadNotes, StreamInfo, BATCH_EVENTS,
+};
+
+/// Bytes per record.
+pub const RECORD_BYTES: usize = 8;
+
+/// Cameras in a DHP19 recording.
+pub const DHP19_CAMERAS: u8 = 4;
+
+/// An address layout and sensor size.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sensor {
+    /// A DAVIS sensor of the given size (width, height).
+    Davis(u16, u16),
+    /// DHP19's four DAVIS346 cameras, camera id in address bits 0–3.
+    Dhp19,
+    /// DVS128 (128 × 128).
+    Dvs128,
+}
+
+impl Sensor {
+    /// Sensor size (width, height) of each camera.
+    pub fn size(self) -> (u16, u16) {
+        match self {
+            Self::Davis(w, h) => (w, h),
+            Self::Dhp19 => (346, 260),
+            Self::Dvs128 => (128, 128),
+        }
+    }
+
+    /// The most specific [`Format`] naming this sensor.
+    pub fn format(self) -> Format {
+        match self {
+            Self::Davis(346, 260) => Format::Aedat2Davis346,
+            Self::Davis(240, 180) => Format::Aedat2Davis240,
+            Self::Davis(..) => Format::Aedat2,
+            Self::Dhp19 => Format::Aedat2Dhp19,
+            Self::Dvs128 => Format::Aedat2Dvs128,
+        }
+    }
+
+    /// The sensor a `--format` value names, if it names one.
+    pub fn of_format(format: Format) -> Option<Self> {
+        match format {
+            Format::Aedat2Davis346 => Some(Self::Davis(346, 260)),
+            Format::Aedat2Davis240 => Some(Self::Davis(240, 180)),
+            Format::Aedat2Dvs128 => Some(Self::Dvs128),
+            Format::Aedat2Dhp19 => Some(Self::Dhp19),
+            _ => None,
+        }
+    }
+
+    /// The sensor of a jAER chip class name (the last component of the `AEChip` class).
+    /// `Err` names a DAVIS whose size is unknown; `Ok(None)` is not a known sensor.
+    fn of_chip_class(class: &str) -> Result<Option<Self>, ()> {
+        let lower = class.to_ascii_lowercase();
+        if lower.contains("multidavis346") {
+            Ok(Some(Self::Dhp19))
+        } else if lower.contains("dvs128") || lower.contains("tmpdiff128") {
+            Ok(Some(Self::Dvs128))
+        } else if lower.contains("davis") || lower.contains("sbret") {
+            match known_sensor_size(&lower) {
+                Some((w, h)) => Ok(Some(Self::Davis(w, h))),
+                None => Err(()),
+            }
+        } else {
+            Ok(None)
+        }
+    }
+}
+
+/// Streaming AEDAT 2.0 reader.
+pub struct Aedat2Reader<R> {
+    src: Source<R>,
+    info: StreamInfo,
+    sensor: Sensor,
+    time: Unwrapper,
+    notes: ReadNotes,
+    finished: bool,
+}
+
+impl<R: Read> Aedat2Reader<R> {
+    /// Parses the header. `format` is [`Format::Aedat2`] (sensor from the header) or one of
+    /// the `Aedat2*` variants (sensor given); `size` is the fallback for a DAVIS of unknown
+    /// size.
+    pub fn new(inner: R, format: Format, size: Option<(u16, u16)>) -> Result<Self, ReadError> {
+        let mut src = Source::new(inner, 0);
+        let header = read_header(&mut src)?;
+        let mut notes = ReadNotes::default();
+        let given = Sensor::of_format(format);
+        let from_header = header
+            .chip
+            .as_deref()
+            .map(|c| (c, Sensor::of_chip_class(c)));
+        let sensor = match (given, from_header) {
+            (Some(s), found) => {
+                notes
+                    .assumptions
+                    .push(format!("sensor from --format {}", format.name()));
+                if let Some((class, Ok(Some(h)))) = found {
+                    if h != s {
+                        notes.assumptions.push(format!(
+                            "the header names {class}, which --format {} overrides",
+                            format.name()
+                        ));
+                    }
+                }
+                s
+            }
+            (None, Some((class, Ok(Some(s))))) => {
+                notes
+                    .assumptions
+                    .push(format!("sensor from the header's AEChip line: {class}"));
+                s
+            }
+            (None, Some((class, Err(())))) => match size {
+                Some((w, h)) => {
+                    notes.assumptions.push(format!(
+                        "DAVIS address layout ({class}), size {w}x{h} from --width/--height"
+                    ));
+                    Sensor::Davis(w, h)
+                }
+                None => {
+                    return Err(ReadError::Unsupported(format!(
+                        "AEDAT 2.0 from {class}: a DAVIS of unknown size; pass --width and --height"
+                    )))
+                }
+            },
+            (None, found) => {
+                let what = match found {
+                    Some((class, _)) => format!("names chip {class:?}, not a known sensor"),
+                    None if header.lines == 0 => "has no header".into(),
+                    None => "names no sensor (no `# AEChip:` line)".into(),
+                };
+                return Err(ReadError::Unsupported(format!(
+                    "this AEDAT 2.0 file {what}; state the address layout with --format \
+                     aedat2-davis346, aedat2-davis240, aedat2-dvs128 or aedat2-dhp19"
+                )));
+            }
+        };
+        let (w, h) = sensor.size();
+        let cameras = if sensor == Sensor::Dhp19 {
+            (0..DHP19_CAMERAS)
+                .map(|id| CameraInfo {
+                    id,
+                    width: Some(w),
+                    height: Some(h),
+                    name: Some(format!("DHP19 camera {id}")),
+                })
+                .collect()
+        } else {
+            vec![CameraInfo {
+                id: 0,
+                width: Some(w),
+                height: Some(h),
+                name: header.chip.clone(),
+            }]
+        };
+        Ok(Self {
+            src,
+            info: StreamInfo {
+                format: sensor.format(),
+                cameras,
+                event_count: None,
+            },
+            sensor,
+            time: Unwrapper::new(32),
+            notes,
+            finished: false,
+        })
+    }
+
+    /// The address layout in use.
+    pub fn sensor(&self) -> Sensor {
+        self.sensor
+    }
+
+    fn fill(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
+        while batch.len() < BATCH_EVENTS {
+            let have = self.src.fill(RECORD_BYTES)?;
+            if have < RECORD_BYTES {
+                if have == 0 {
+                    self.finished = true;
+                    return Ok(());
+                }
+                return Err(ReadError::Truncated {
+                    offset: self.src.offset(),
+                    what: "an AEDAT 2.0 event record",
+                });
+            }
+            let n = (have / RECORD_BYTES).min(BATCH_EVENTS - batch.len());
+            let base = self.src.offset();
+            let records = &self.src.data()[..n * RECORD_BYTES];
+            let mut d = Decoder {
+                time: &mut self.time,
+                notes: &mut self.notes,
+                batch,
+                base,
+            };
+            match self.sensor {
+                Sensor::Davis(w, h) => d.davis(records, w, h, false)?,
+                Sensor::Dhp19 => d.davis(records, 346, 260, true)?,
+                Sensor::Dvs128 => d.dvs128(records)?,
+            }
+            self.src.consume(n * RECORD_BYTES);
+        }
+        Ok(())
+    }
+}
+
+/// What the header says.
+struct Header {
+    /// Last component of the `AEChip` class.
+    chip: Option<String>,
+    /// Header lines read.
+    lines: usize,
+}
+
+fn read_header<R: Read>(src: &mut Source<R>) -> Result<Header, ReadError> {
+    let mut header = Header {
+        chip: None,
+        lines: 0,
+    };
+    if src.peek()? != Some(b'#') {
+        return Ok(header);
+    }
+    while src.peek()? == Some(b'#') && (header.lines == 0 || src.line_is_text()?) {
+        let at = src.offset();
+        let Some(line) = src.header_line(0)? else {
+            break;
+        };
+        if header.lines == 0 {
+            check_version(&line)?;
+        }
+        header.lines += 1;
+        let body = line[1..].trim();
+        if body.eq_ignore_ascii_case("End Of ASCII Header") {
+            break;
+        }
+        if let Some(class) = body.strip_prefix("AEChip:") {
+            let class = class.trim();
+            let base = class.rsplit('.').next().unwrap_or(class).trim();
+            if base.is_empty() {
+                return Err(ReadError::Corrupt {
+                    offset: at,
+                    message: "empty AEChip line".into(),
+                });
+            }
+            header.chip = Some(base.to_string());
+        }
+    }
+    Ok(header)
+}
+
+fn check_version(first: &str) -> Result<(), ReadError> {
+    let Some(version) = first.strip_prefix("#!AER-DAT") else {
+        return Err(ReadError::Corrupt {
+            offset: 0,
+            message: "not an AEDAT file: the first line is not #!AER-DAT…".into(),
+        });
+    };
+    let version = version.trim();
+    if version.starts_with("2.") {
+        Ok(())
+    } else if version.starts_with("1.") {
+        Err(ReadError::Unsupported(
+            "AEDAT 1.0 (6-byte records); only 2.0 is read here".into(),
+        ))
+    } else {
+        Err(ReadError::Unsupported(format!(
+            "AEDAT version {version:?} read as 2.0; use the format that matches the file"
+        )))
+    }
+}
+
+/// Decodes whole records into a batch.
+struct Decoder<'a> {
+    time: &'a mut Unwrapper,
+    notes: &'a mut ReadNotes,
+    batch: &'a mut Batch,
+    /// File offset of the first record.
+    base: u64,
+}
+
+impl Decoder<'_> {
+    fn davis(&mut self, records: &[u8], w: u16, h: u16, dhp19: bool) -> Result<(), ReadError> {
+        self.batch.events.reserve(records.len() / RECORD_BYTES);
+        self.batch.cameras.reserve(records.len() / RECORD_BYTES);
+        for (i, r) in records.chunks_exact(RECORD_BYTES).enumerate() {
+            let addr = u32::from_be_bytes([r[0], r[1], r[2], r[3]]);
+            let ts = u32::from_be_bytes([r[4], r[5], r[6], r[7]]);
+            if addr & 0x8000_0400 != 0 {
+                self.notes.skipped_records += 1;
+                continue;
+            }
+            let offset = self.base + (i * RECORD_BYTES) as u64;
+            let x = (addr >> 12) & 0x3FF;
+            let y_raw = (addr >> 22) & 0x1FF;
+            if x >= u32::from(w) || y_raw >= u32::from(h) {
+                return Err(out_of_sensor(offset, x, y_raw, (w, h)));
+            }
+            let camera = if dhp19 {
+                let c = addr & 0xF;
+                if c >= u32::from(DHP19_CAMERAS) {
+                    return Err(ReadError::Corrupt {
+                        offset,
+                        message: format!("DHP19 camera id {c} (address bits 0-3) is above 3"),
+                    });
+                }
+                c as u8
+            } else {
+                0
+            };
+            let t = self
+                .time
+                .unwrap(u64::from(ts))
+                .ok_or_else(|| time_overflow(offset))?;
+            let y = h - 1 - y_raw as u16;
+            self.batch
+                .push(camera, Event::new(x as u16, y, t, addr & 0x800 != 0));
+        }
+        Ok(())
+    }
+
+    fn dvs128(&mut self, records: &[u8]) -> Result<(), ReadError> {
+        for (i, r) in records.chunks_exact(RECORD_BYTES).enumerate() {
+            let addr = u32::from_be_bytes([r[0], r[1], r[2], r[3]]);
+            let ts = u32::from_be_bytes([r[4], r[5], r[6], r[7]]);
+            if addr & 0xFFFF_8000 != 0 {
+                self.notes.skipped_records += 1;
+                continue;
+            }
+            let offset = self.base + (i * RECORD_BYTES) as u64;
+            let x = 127 - ((addr >> 1) & 0x7F) as u16;
+            let y = ((addr >> 8) & 0x7F) as u16;
+            let t = self
+                .time
+                .unwrap(u64::from(ts))
+                .ok_or_else(|| time_overflow(offset))?;
+            self.batch.push(0, Event::new(x, y, t, addr & 1 == 0));
+        }
+        Ok(())
+    }
+}
+
+impl<R: Read> EventReader for Aedat2Reader<R> {
+    fn info(&self) -> &StreamInfo {
+        &self.info
+    }
+
+    /// Fills `batch` with up to [`BATCH_EVENTS`] events. After an error the reader is finished.
+    fn read_batch(&mut self, batch: &mut Batch) -> Result<bool, ReadError> {
+        batch.clear();
+        if self.finished {
+            return Ok(false);
+        }
+        if let Err(e) = self.fill(batch) {
+            self.finished = true;
+            batch.clear();
+            return Err(e);
+        }
+        Ok(!batch.is_empty())
+    }
+
+    fn notes(&self) -> ReadNotes {
+        ReadNotes {
+            timestamp_wraps: self.time.wraps(),
+            ..self.notes.clone()
+        }
+    }
+}

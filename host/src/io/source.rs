@@ -1,0 +1,297 @@
+//! Shared plumbing of the record-oriented readers: a chunked byte source that knows its file
+//! offset, bounded header-line reading, and timestamp unwrapping.
+//!
+//! Every reader decodes straight out of one fixed buffer ([`CHUNK_BYTES`]), so memory does not
+//! grow with the file, and every error can name the offset where the bad bytes start.
+
+use std::io::{self, Read};
+
+use super::ReadError;
+
+/// Bytes read from the file at a time.
+pub(crate) const CHUNK_BYTES: usize = 256 << 10;
+
+/// Longest header line accepted, in bytes.
+pub const MAX_HEADER_LINE_BYTES: usize = 64 << 10;
+
+/// Longest text header accepted, in bytes (all lines together).
+pub const MAX_HEADER_BYTES: u64 = 1 << 20;
+
+/// A [`Read`] seen through one reusable buffer; tracks the file offset of every byte.
+pub(crate) struct Source<R> {
+    inner: R,
+    buf: Box<[u8]>,
+    start: usize,
+    end: usize,
+    /// File offset of `buf[0]`.
+    base: u64,
+    eof: bool,
+}
+
+impl<R: Read> Source<R> {
+    /// Reads `inner`, whose next byte is at file offset `offset`.
+    pub(crate) fn new(inner: R, offset: u64) -> Self {
+        Self {
+            inner,
+            buf: vec![0; CHUNK_BYTES].into_boxed_slice(),
+            start: 0,
+            end: 0,
+            base: offset,
+            eof: false,
+        }
+    }
+
+    /// File offset of the next unread byte.
+    pub(crate) fn offset(&self) -> u64 {
+        self.base + self.start as u64
+    }
+
+    /// The buffered, unread bytes.
+    pub(crate) fn data(&self) -> &[u8] {
+        &self.buf[self.start..self.end]
+    }
+
+    /// Marks `n` buffered bytes as read.
+    pub(crate) fn consume(&mut self, n: usize) {
+        self.start = (self.start + n).min(self.end);
+    }
+
+    /// Buffers at least `want` bytes (at most [`CHUNK_BYTES`]) unless the input ends first;
+    /// returns the number of bytes buffered.
+    pub(crate) fn fill(&mut self, want: usize) -> io::Result<usize> {
+        let want = want.min(self.buf.len());
+        if self.end - self.start >= want || self.eof {
+            return Ok(self.end - self.start);
+        }
+        self.buf.copy_within(self.start..self.end, 0);
+        self.base += self.start as u64;
+        self.end -= self.start;
+        self.start = 0;
+        while self.end < want {
+            match self.inner.read(&mut self.buf[self.end..]) {
+                Ok(0) => {
+                    self.eof = true;
+                    break;
+                }
+                Ok(n) => self.end += n,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(self.end - self.start)
+    }
+
+    /// The next byte, without reading it; `None` at the end of the input.
+    pub(crate) fn peek(&mut self) -> io::Result<Option<u8>> {
+        self.fill(1)?;
+        Ok(self.data().first().copied())
+    }
+
+    /// Skips `n` bytes; returns how many were there (fewer only at the end of the input).
+    pub(crate) fn skip(&mut self, n: u64) -> io::Result<u64> {
+        let mut left = n;
+        while left > 0 {
+            let have = self.fill(1)?;
+            if have == 0 {
+                break;
+            }
+            let k = usize::try_from(left).unwrap_or(usize::MAX).min(have);
+            self.consume(k);
+            left -= k as u64;
+        }
+        Ok(n - left)
+    }
+
+    /// Whether the line at the read position (up to `\n`, at most
+    /// [`MAX_HEADER_LINE_BYTES`]) is text: no control bytes other than tab and CR. Binary
+    /// records that happen to start with a header's comment byte (`#`, `%`) almost always hold
+    /// one before their first `\n`.
+    pub(crate) fn line_is_text(&mut self) -> io::Result<bool> {
+        let have = self.fill(MAX_HEADER_LINE_BYTES + 1)?;
+        let data = &self.data()[..have.min(MAX_HEADER_LINE_BYTES + 1)];
+        let end = data.iter().position(|&b| b == b'\n').unwrap_or(data.len());
+        Ok(data[..end]
+            .iter()
+            .all(|&b| b >= 0x20 || b == b'\t' || b == b'\r'))
+    }
+
+    /// Reads one header line (up to and including `\n`, or to the end of the input) and returns
+    /// it without the line ending; `None` at the end of the input. `header_start` is where the
+    /// header began: the whole header is limited to [`MAX_HEADER_BYTES`].
+    pub(crate) fn header_line(&mut self, header_start: u64) -> Result<Option<String>, ReadError> {
+        let at = self.offset();
+        if at.saturating_sub(header_start) > MAX_HEADER_BYTES {
+            return Err(ReadError::Corrupt {
+                offset: at,
+                message: format!("header is longer than {MAX_HEADER_BYTES} bytes"),
+            });
+        }
+        let have = self.fill(MAX_HEADER_LINE_BYTES + 1)?;
+        if have == 0 {
+            return Ok(None);
+        }
+        let data = &self.data()[..have.min(MAX_HEADER_LINE_BYTES + 1)];
+        let len = match data.iter().position(|&b| b == b'\n') {
+            Some(i) => i + 1,
+            None if data.len() > MAX_HEADER_LINE_BYTES => {
+                return Err(ReadError::Corrupt {
+                    offset: at,
+                    message: format!(
+                    "header line is longer than {MAX_HEADER_LINE_BYTES} bytes (missing line end?)"
+                ),
+                })
+            }
+            None => data.len(),
+        };
+        let line = String::from_utf8_lossy(&data[..len])
+            .trim_end_matches(['\r', '\n'])
+            .to_string();
+        self.consume(len);
+        Ok(Some(line))
+    }
+}
+
+/// Unwraps a free-running counter of `bits` bits into a monotonic count.
+///
+/// A step back by more than half the period is a wrap. A step forward by more than half the
+/// period right after a wrap is a late value from before the wrap (events of several cameras
+/// or pixels are not always in strict order), and is placed in the previous period.
+#[derive(Clone, Debug)]
+pub(crate) struct Unwrapper {
+    bits: u32,
+    last: Option<u64>,
+    epoch: u64,
+}
+
+impl Unwrapper {
+    /// An unwrapper for a `bits`-bit counter (`bits` < 64).
+    pub(crate) fn new(bits: u32) -> Self {
+        Self {
+            bits,
+            last: None,
+            epoch: 0,
+        }
+    }
+
+    /// Wraps seen so far.
+    pub(crate) fn wraps(&self) -> u64 {
+        self.epoch
+    }
+
+    /// The unwrapped value of `raw`; `None` when it does not fit an `i64`.
+    pub(crate) fn unwrap(&mut self, raw: u64) -> Option<i64> {
+        let half = 1u64 << (self.bits - 1);
+        let mut epoch = self.epoch;
+        match self.last {
+            Some(last) if raw < last && last - raw > half => {
+                self.epoch += 1;
+                epoch = self.epoch;
+                self.last = Some(raw);
+            }
+            Some(last) if raw > last && raw - last > half && epoch > 0 => epoch -= 1,
+            _ => self.last = Some(raw),
+        }
+        epoch
+            .checked_mul(1u64 << self.bits)
+            .and_then(|base| base.checked_add(raw))
+            .and_then(|v| i64::try_from(v).ok())
+    }
+}
+
+/// The error for a timestamp that does not fit the 64-bit microsecond count.
+pub(crate) fn time_overflow(offset: u64) -> ReadError {
+    ReadError::Corrupt {
+        offset,
+        message: "timestamp overflows 64-bit microseconds".into(),
+    }
+}
+
+/// The error for an event outside the sensor.
+pub(crate) fn out_of_sensor(offset: u64, x: u32, y: u32, size: (u16, u16)) -> ReadError {
+    ReadError::Corrupt {
+        offset,
+        message: format!(
+            "event at x = {x}, y = {y} lies outside the {}x{} sensor",
+            size.0, size.1
+        ),
+    }
+}
+
+/// Sensor size of a known camera model, from the name a header gives it (case-insensitive).
+pub(crate) fn known_sensor_size(name: &str) -> Option<(u16, u16)> {
+    let n = name.to_ascii_lowercase().replace([' ', '_', '-'], "");
+    let table: &[(&str, (u16, u16))] = &[
+        ("davis346", (346, 260)),
+        ("davis240", (240, 180)),
+        ("sbret10", (240, 180)),
+        ("sbret20", (240, 180)),
+        ("sbret21", (240, 180)),
+        ("davis128", (128, 128)),
+        ("davis208", (208, 192)),
+        ("pixelparade", (208, 192)),
+        ("sensdavis192", (208, 192)),
+        ("davis640", (640, 480)),
+        ("davishet640", (640, 480)),
+        ("dvxplorerlite", (320, 240)),
+        ("dvxplorermini", (640, 480)),
+        ("dvxplorer", (640, 480)),
+        ("dvs132s", (132, 104)),
+        ("dvs128", (128, 128)),
+        ("tmpdiff128", (128, 128)),
+    ];
+    table
+        .iter()
+        .find(|(key, _)| n.contains(key))
+        .map(|&(_, size)| size)
+}
+
+/// Parses `WxH` (as in `% geometry 1280x720`).
+pub(crate) fn parse_geometry(s: &str) -> Option<(u16, u16)> {
+    let (w, h) = s.trim().split_once(['x', 'X'])?;
+    Some((w.trim().parse().ok()?, h.trim().parse().ok()?))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unwrapper_counts_wraps_and_places_late_values() {
+        let mut u = Unwrapper::new(8);
+        assert_eq!(u.unwrap(250), Some(250));
+        assert_eq!(u.unwrap(3), Some(259));
+        assert_eq!(u.wraps(), 1);
+        assert_eq!(u.unwrap(254), Some(254), "late value from before the wrap");
+        assert_eq!(u.unwrap(10), Some(266));
+        assert_eq!(u.unwrap(5), Some(261), "small step back is no wrap");
+    }
+
+    #[test]
+    fn unwrapper_overflow_is_none() {
+        let mut u = Unwrapper::new(63);
+        assert_eq!(u.unwrap((1 << 62) + 1), Some((1 << 62) + 1));
+        assert_eq!(u.unwrap(0), None, "the wrap puts it at 2^63");
+    }
+
+    #[test]
+    fn source_tracks_offsets_across_refills() {
+        let bytes: Vec<u8> = (0..CHUNK_BYTES * 2 + 10).map(|i| i as u8).collect();
+        let mut s = Source::new(&bytes[..], 100);
+        assert_eq!(s.fill(4).unwrap(), CHUNK_BYTES);
+        s.consume(CHUNK_BYTES - 2);
+        assert_eq!(s.offset(), 100 + CHUNK_BYTES as u64 - 2);
+        assert!(s.fill(8).unwrap() >= 8);
+        assert_eq!(s.data()[0], (CHUNK_BYTES - 2) as u8);
+        assert_eq!(s.skip(u64::MAX).unwrap(), CHUNK_BYTES as u64 + 12);
+        assert_eq!(s.peek().unwrap(), None);
+    }
+
+    #[test]
+    fn sensor_names() {
+        assert_eq!(known_sensor_size("DAVIS346B"), Some((346, 260)));
+        assert_eq!(known_sensor_size("DVXplorer_Lite"), Some((320, 240)));
+        assert_eq!(known_sensor_size("DVXPLORER"), Some((640, 480)));
+        assert_eq!(known_sensor_size("File"), None);
+        assert_eq!(parse_geometry("1280x720"), Some((1280, 720)));
+    }
+}

@@ -1,0 +1,690 @@
+//! Text / CSV events, one per line: `t x y p` (the RPG event-camera datasets' layout).
+//!
+//! # Lines
+//!
+//! * Fields are separated by spaces or tabs (runs count as one) or by a comma or semicolon
+//!   (with optional spaces around it); an empty field between two commas is an error, never a
+//!   shifted column.
+//! * Empty lines and lines starting with `#` or `%` are comments.
+//! * Without a header row a line has exactly four fields, `t x y p`. A first non-comment line
+//!   that is not all numbers is a header row naming the columns, in any order and among
+//!   others: `t`/`ts`/`time`/`timestamp`, `x`, `y`, `p`/`pol`/`polarity`; a unit suffix on the
+//!   time column (`t_us`, `timestamp[s]`, `time(ms)`) states the time unit. Every line then has
+//!   as many fields as the header row.
+//! * x and y are integers 0–65535 (`12.0` is accepted), p is 0/1 or -1/1.
+//!
+//! # Time unit
+//!
+//! In order: `--time-unit`, the header's unit suffix, else detection from the first
+//! [`DETECT_BYTES`] after the header: seconds if a timestamp there has a
+//! decimal point or an exponent, microseconds otherwise. The decision is recorded in
+//! [`ReadNotes::assumptions`]. When microseconds were detected, a later timestamp with a
+//! fraction of a microsecond is an error (the detection was wrong; pass `--time-unit`), not a
+//! silent rounding. Timestamps are converted exactly (decimal arithmetic, no float rounding)
+//! and rounded half away from zero to whole microseconds.
+//!
+//! # Damage
+//!
+//! A malformed line (wrong field count, a field that is not a number, a coordinate or polarity
+//! out of range, a pixel outside the `--width/--height` sensor, a timestamp beyond 64-bit
+//! microseconds) is an error naming its line number and byte offset. Lines are limited to
+//! [`MAX_LINE_BYTES`].
+
+use std::io::Read;
+
+use evpose_core::Event;
+
+use super::source::Source;
+use super::{
+    Batch, CameraInfo, EventReader, Format, ReadError, ReadNotes, StreamInfo, TimeUnit,
+    BATCH_EVENTS, DETECT_BYTES,
+};
+
+/// Longest line accepted, in bytes.
+pub const MAX_LINE_BYTES: usize = 4096;
+
+/// Most fields a line may have.
+pub const MAX_FIELDS: usize = 64;
+
+/// Lines [`looks_like_text`] and the time-unit detection look at.
+const DETECT_LINES: usize = 1000;
+
+/// Which field holds what.
+#[derive(Clone, Copy, Debug)]
+struct Columns {
+    t: usize,
+    x: usize,
+    y: usize,
+    p: usize,
+    /// Fields every line must have.
+    count: usize,
+}
+
+const T_X_Y_P: Columns = Columns {
+    t: 0,
+    x: 1,
+    y: 2,
+    p: 3,
+    count: 4,
+};
+
+/// How lines are read, and where the reader is.
+struct LineState {
+    cols: Columns,
+    /// Power of ten from the file's time unit to microseconds.
+    exponent: i32,
+    /// The unit was detected as microseconds: fractions are errors.
+    strict: bool,
+    size: Option<(u16, u16)>,
+    /// 1-based number of the next line.
+    line: u64,
+}
+
+/// Streaming text reader.
+pub struct TextReader<R> {
+    src: Source<R>,
+    info: StreamInfo,
+    state: LineState,
+    notes: ReadNotes,
+    finished: bool,
+}
+
+impl<R: Read> TextReader<R> {
+    /// Reads comments and the header row, and settles the time unit (`unit`, else from the
+    /// header, else detected); `size` is the sensor size for the coordinate check.
+    pub fn new(
+        inner: R,
+        unit: Option<TimeUnit>,
+        size: Option<(u16, u16)>,
+    ) -> Result<Self, ReadError> {
+        let mut src = Source::new(inner, 0);
+        src.fill(3)?;
+        if src.data().starts_with(b"\xEF\xBB\xBF") {
+            src.consume(3);
+        }
+        let mut line = 1u64;
+        let mut notes = ReadNotes::default();
+        let mut cols = T_X_Y_P;
+        let mut header_unit = None;
+        // Comments, then either the header row or the first data line (left unread).
+        loop {
+            let at = src.offset();
+            let have = src.fill(MAX_LINE_BYTES + 1)?;
+            if have == 0 {
+                break;
+            }
+            let data = src.data();
+            let (body, len) = match data.iter().position(|&b| b == b'\n') {
+                Some(i) => (&data[..i], i + 1),
+                None if have > MAX_LINE_BYTES => return Err(long_line(at, line)),
+                None => (data, have),
+            };
+            let body = trim(body);
+            if is_comment(body) {
+                src.consume(len);
+                line += 1;
+                continue;
+            }
+            let mut fields = [&[][..]; MAX_FIELDS];
+            let n = split_fields(body, &mut fields).map_err(|m| bad_line(at, line, m))?;
+            if fields[..n].iter().all(|f| parse_decimal(f).is_some()) {
+                break;
+            }
+            let (c, u) = header_columns(&fields[..n]).map_err(|m| bad_line(at, line, &m))?;
+            cols = c;
+            header_unit = u;
+            notes.assumptions.push(format!(
+                "columns from the header row: {}",
+                String::from_utf8_lossy(body)
+            ));
+            src.consume(len);
+            line += 1;
+            break;
+        }
+        let (unit, strict) = match (unit, header_unit) {
+            (Some(u), _) => (u, false),
+            (None, Some(u)) => {
+                notes
+                    .assumptions
+                    .push(format!("timestamps in {} (header row)", u.name()));
+                (u, false)
+            }
+            (None, None) => {
+                src.fill(DETECT_BYTES)?;
+                let seconds = has_fractional_time(src.data(), cols);
+                let (u, why) = if seconds {
+                    (
+                        TimeUnit::S,
+                        "a timestamp in the first lines has a decimal point",
+                    )
+                } else {
+                    (TimeUnit::Us, "the first lines have integer timestamps")
+                };
+                notes.assumptions.push(format!(
+                    "timestamps in {} (detected: {why}; --time-unit overrides)",
+                    u.name()
+                ));
+                (u, u == TimeUnit::Us)
+            }
+        };
+        Ok(Self {
+            src,
+            info: StreamInfo {
+                format: Format::Text,
+                cameras: vec![CameraInfo {
+                    id: 0,
+                    width: size.map(|s| s.0),
+                    height: size.map(|s| s.1),
+                    name: None,
+                }],
+                event_count: None,
+            },
+            state: LineState {
+                cols,
+                exponent: unit.exponent_to_us(),
+                strict,
+                size,
+                line,
+            },
+            notes,
+            finished: false,
+        })
+    }
+
+    fn fill(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
+        while batch.len() < BATCH_EVENTS {
+            let have = self.src.fill(1)?;
+            if have == 0 {
+                self.finished = true;
+                return Ok(());
+            }
+            let base = self.src.offset();
+            let used = parse_lines(self.src.data(), base, &mut self.state, batch)?;
+            if used > 0 {
+                self.src.consume(used);
+                continue;
+            }
+            // No whole line is buffered.
+            if have > MAX_LINE_BYTES {
+                return Err(long_line(base, self.state.line));
+            }
+            if self.src.fill(have + 1)? == have {
+                // The last line has no line end.
+                let data = self.src.data();
+                parse_line(data, base, &mut self.state, batch)?;
+                self.src.consume(have);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Parses the whole lines of `data` (at file offset `base`) until the batch is full; returns
+/// the bytes used.
+fn parse_lines(
+    data: &[u8],
+    base: u64,
+    state: &mut LineState,
+    batch: &mut Batch,
+) -> Result<usize, ReadError> {
+    let mut pos = 0;
+    while batch.len() < BATCH_EVENTS {
+        let Some(len) = data[pos..].iter().position(|&b| b == b'\n') else {
+            break;
+        };
+        if len > MAX_LINE_BYTES {
+            return Err(long_line(base + pos as u64, state.line));
+        }
+        parse_line(&data[pos..pos + len], base + pos as u64, state, batch)?;
+        pos += len + 1;
+    }
+    Ok(pos)
+}
+
+/// Parses one line (without its `\n`) at file offset `at`.
+fn parse_line(
+    raw: &[u8],
+    at: u64,
+    state: &mut LineState,
+    batch: &mut Batch,
+) -> Result<(), ReadError> {
+    let line = state.line;
+    state.line += 1;
+    let body = trim(raw);
+    if is_comment(body) {
+        return Ok(());
+    }
+    let mut fields = [&[][..]; MAX_FIELDS];
+    let n = split_fields(body, &mut fields).map_err(|m| bad_line(at, line, m))?;
+    let c = state.cols;
+    if n != c.count {
+        return Err(bad_line(
+            at,
+            line,
+            &format!("{n} fields, expected {}", c.count),
+        ));
+    }
+    let field = |i: usize| String::from_utf8_lossy(fields[i]).into_owned();
+    let t_dec = parse_decimal(fields[c.t]);
+    let t = t_dec
+        .and_then(|d| d.scaled(state.exponent, state.strict))
+        .ok_or_else(|| {
+            let rounded = t_dec.and_then(|d| d.scaled(state.exponent, false));
+            let why = if state.strict && rounded.is_some() {
+                " (a fraction of a microsecond, but integer microseconds were detected; \
+                 pass --time-unit)"
+            } else {
+                ""
+            };
+            bad_line(
+                at,
+                line,
+                &format!("timestamp {:?} is not valid{why}", field(c.t)),
+            )
+        })?;
+    let coord = |i: usize, what: &str| {
+        parse_decimal(fields[i])
+            .and_then(|d| d.scaled(0, true))
+            .and_then(|v| u16::try_from(v).ok())
+            .ok_or_else(|| bad_line(at, line, &format!("{what} {:?} is not valid", field(i))))
+    };
+    let x = coord(c.x, "x")?;
+    let y = coord(c.y, "y")?;
+    let on = match parse_decimal(fields[c.p]).and_then(|d| d.scaled(0, true)) {
+        Some(1) => true,
+        Some(0 | -1) => false,
+        _ => {
+            return Err(bad_line(
+                at,
+                line,
+                &format!("polarity {:?} is not 0/1 or -1/1", field(c.p)),
+            ))
+        }
+    };
+    if let Some((w, h)) = state.size {
+        if x >= w || y >= h {
+            return Err(bad_line(
+                at,
+                line,
+                &format!("x = {x}, y = {y} lies outside the {w}x{h} sensor"),
+            ));
+        }
+    }
+    batch.push(0, Event::new(x, y, t, on));
+    Ok(())
+}
+
+fn bad_line(offset: u64, line: u64, message: &str) -> ReadError {
+    ReadError::Corrupt {
+        offset,
+        message: format!("line {line}: {message}"),
+    }
+}
+
+fn long_line(offset: u64, line: u64) -> ReadError {
+    bad_line(
+        offset,
+        line,
+        &format!("longer than {MAX_LINE_BYTES} bytes (not a text event file?)"),
+    )
+}
+
+fn trim(mut s: &[u8]) -> &[u8] {
+    while let [b' ' | b'\t' | b'\r', rest @ ..] = s {
+        s = rest;
+    }
+    while let [rest @ .., b' ' | b'\t' | b'\r'] = s {
+        s = rest;
+    }
+    s
+}
+
+fn is_comment(body: &[u8]) -> bool {
+    matches!(body.first(), None | Some(b'#' | b'%'))
+}
+
+/// Splits a trimmed line into fields; returns how many.
+fn split_fields<'a>(
+    line: &'a [u8],
+    out: &mut [&'a [u8]; MAX_FIELDS],
+) -> Result<usize, &'static str> {
+    let is_space = |b: u8| b == b' ' || b == b'\t';
+    let is_sep = |b: u8| is_space(b) || b == b',' || b == b';';
+    let mut i = 0;
+    let mut n = 0;
+    while i < line.len() {
+        let start = i;
+        while i < line.len() && !is_sep(line[i]) {
+            i += 1;
+        }
+        if i == start {
+            return Err("empty field");
+        }
+        if n == MAX_FIELDS {
+            return Err("too many fields");
+        }
+        out[n] = &line[start..i];
+        n += 1;
+        while i < line.len() && is_space(line[i]) {
+            i += 1;
+        }
+        if i < line.len() && (line[i] == b',' || line[i] == b';') {
+            i += 1;
+            while i < line.len() && is_space(line[i]) {
+                i += 1;
+            }
+            if i == line.len() {
+                return Err("empty last field");
+            }
+        }
+    }
+    Ok(n)
+}
+
+/// A decimal number: `(-1)^negative × digits × 10^exponent`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Decimal {
+    negative: bool,
+    digits: u64,
+    exponent: i32,
+}
+
+/// Parses `[+-]digits[.digits][(e|E)[+-]digits]`; digits past the 19th significant one are
+/// dropped (far below a microsecond for any timestamp).
+fn parse_decimal(s: &[u8]) -> Option<Decimal> {
+    let (negative, mut s) = match s {
+        [b'-', rest @ ..] => (true, rest),
+        [b'+', rest @ ..] => (false, rest),
+        _ => (false, s),
+    };
+    let mut digits = 0u64;
+    let mut exponent = 0i32;
+    let mut seen = false;
+    let mut significant = 0;
+    let mut fraction = false;
+    while let [c, rest @ ..] = s {
+        match c {
+            b'0'..=b'9' => {
+                seen = true;
+                if digits == 0 && *c == b'0' {
+                    if fraction {
+                        exponent -= 1;
+                    }
+                } else if significant < 19 {
+                    digits = digits * 10 + u64::from(c - b'0');
+                    significant += 1;
+                    if fraction {
+                        exponent -= 1;
+                    }
+                } else if !fraction {
+                    exponent += 1;
+                }
+            }
+            b'.' if !fraction => fraction = true,
+            _ => break,
+        }
+        s = rest;
+    }
+    if !seen {
+        return None;
+    }
+    if let [b'e' | b'E', rest @ ..] = s {
+        let (neg, mut r) = match rest {
+            [b'-', r @ ..] => (true, r),
+            [b'+', r @ ..] => (false, r),
+            _ => (false, rest),
+        };
+        let mut e = 0i32;
+        let mut any = false;
+        while let [c @ b'0'..=b'9', more @ ..] = r {
+            e = (e * 10 + i32::from(c - b'0')).min(10_000);
+            any = true;
+            r = more;
+        }
+        if !any {
+            return None;
+        }
+        exponent += if neg { -e } else { e };
+        s = r;
+    }
+    s.is_empty().then_some(Decimal {
+        negative,
+        digits,
+        exponent,
+    })
+}
+
+impl Decimal {
+    /// The value × 10^`shift` as an integer, rounded half away from zero; `None` when it
+    /// overflows an `i64`, or when `exact` and rounding was needed.
+    fn scaled(self, shift: i32, exact: bool) -> Option<i64> {
+        let e = self.exponent.checked_add(shift)?;
+        let magnitude: u128 = if self.digits == 0 {
+            0
+        } else if e >= 0 {
+            let p = 10u128.checked_pow(u32::try_from(e).ok()?)?;
+            u128::from(self.digits).checked_mul(p)?
+        } else {
+            let k = e.unsigned_abs();
+            if k > 38 {
+                if exact {
+                    return None;
+                }
+                0
+            } else {
+                let p = 10u128.pow(k);
+                let (q, r) = (u128::from(self.digits) / p, u128::from(self.digits) % p);
+                if exact && r != 0 {
+                    return None;
+                }
+                q + u128::from(2 * r >= p)
+            }
+        };
+        let m = i128::try_from(magnitude).ok()?;
+        i64::try_from(if self.negative { -m } else { m }).ok()
+    }
+}
+
+/// The columns and time unit a header row names.
+fn header_columns(names: &[&[u8]]) -> Result<(Columns, Option<TimeUnit>), String> {
+    let mut t = None;
+    let mut x = None;
+    let mut y = None;
+    let mut p = None;
+    let mut unit = None;
+    for (i, raw) in names.iter().enumerate() {
+        let name = String::from_utf8_lossy(raw)
+            .trim_matches('"')
+            .to_ascii_lowercase();
+        let split = name.find(['_', '[', '(', ' ']).unwrap_or(name.len());
+        let (base, rest) = name.split_at(split);
+        let suffix = rest.trim_matches(|c| matches!(c, '_' | '[' | ']' | '(' | ')' | ' '));
+        let slot = match base {
+            "t" | "ts" | "time" | "timestamp" | "timestamps" => {
+                let u = match suffix {
+                    "" => None,
+                    "us" | "µs" | "usec" | "microseconds" => Some(TimeUnit::Us),
+                    "s" | "sec" | "seconds" => Some(TimeUnit::S),
+                    "ms" | "msec" | "milliseconds" => Some(TimeUnit::Ms),
+                    "ns" | "nsec" | "nanoseconds" => Some(TimeUnit::Ns),
+                    _ => continue,
+                };
+                unit = u;
+                &mut t
+            }
+            "x" if suffix.is_empty() => &mut x,
+            "y" if suffix.is_empty() => &mut y,
+            "p" | "pol" | "polarity" | "on" if suffix.is_empty() => &mut p,
+            _ => continue,
+        };
+        if slot.replace(i).is_some() {
+            return Err(format!("header row names column {base:?} twice"));
+        }
+    }
+    match (t, x, y, p) {
+        (Some(t), Some(x), Some(y), Some(p)) => Ok((
+            Columns {
+                t,
+                x,
+                y,
+                p,
+                count: names.len(),
+            },
+            unit,
+        )),
+        _ => Err(format!(
+            "neither four numbers nor a header row naming t, x, y and p columns: {}",
+            names
+                .iter()
+                .map(|n| String::from_utf8_lossy(n).into_owned())
+                .collect::<Vec<_>>()
+                .join(" ")
+        )),
+    }
+}
+
+/// Whether a timestamp in the first whole lines of `data` has a decimal point or exponent.
+fn has_fractional_time(data: &[u8], cols: Columns) -> bool {
+    let mut fields = [&[][..]; MAX_FIELDS];
+    data.split(|&b| b == b'\n')
+        .take(DETECT_LINES)
+        .map(trim)
+        .filter(|l| !is_comment(l))
+        .filter_map(|l| {
+            let n = split_fields(l, &mut fields).ok()?;
+            (n > cols.t).then(|| {
+                fields[cols.t]
+                    .iter()
+                    .any(|b| matches!(b, b'.' | b'e' | b'E'))
+            })
+        })
+        .any(|f| f)
+}
+
+/// Whether `head` (the start of a file) looks like a text event file: printable ASCII whose
+/// first non-comment line is four numbers, or a header row naming t/x/y/p followed by a line
+/// of numbers.
+pub fn looks_like_text(head: &[u8]) -> bool {
+    let head = head.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(head);
+    if head.is_empty()
+        || !head
+            .iter()
+            .all(|&b| matches!(b, b'\t' | b'\n' | b'\r' | 0x20..=0x7E))
+    {
+        return false;
+    }
+    // A cut last line is not judged.
+    let whole = match head.iter().rposition(|&b| b == b'\n') {
+        Some(i) if i + 1 < head.len() => &head[..i],
+        _ => head,
+    };
+    let mut fields = [&[][..]; MAX_FIELDS];
+    let mut cols = None;
+    for line in whole.split(|&b| b == b'\n').take(DETECT_LINES).map(trim) {
+        if is_comment(line) {
+            continue;
+        }
+        let Ok(n) = split_fields(line, &mut fields) else {
+            return false;
+        };
+        let numeric = fields[..n].iter().all(|f| parse_decimal(f).is_some());
+        return match cols {
+            None if numeric => n == 4,
+            None => match header_columns(&fields[..n]) {
+                Ok((c, _)) => {
+                    cols = Some(c);
+                    continue;
+                }
+                Err(_) => false,
+            },
+            Some(c) => numeric && n == c.count,
+        };
+    }
+    false
+}
+
+impl<R: Read> EventReader for TextReader<R> {
+    fn info(&self) -> &StreamInfo {
+        &self.info
+    }
+
+    /// Fills `batch` with up to [`BATCH_EVENTS`] events. After an error the reader is finished.
+    fn read_batch(&mut self, batch: &mut Batch) -> Result<bool, ReadError> {
+        batch.clear();
+        if self.finished {
+            return Ok(false);
+        }
+        if let Err(e) = self.fill(batch) {
+            self.finished = true;
+            batch.clear();
+            return Err(e);
+        }
+        Ok(!batch.is_empty())
+    }
+
+    fn notes(&self) -> ReadNotes {
+        self.notes.clone()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dec(s: &str) -> Option<Decimal> {
+        parse_decimal(s.as_bytes())
+    }
+
+    #[test]
+    fn decimals_scale_exactly() {
+        let us = |s: &str| dec(s).and_then(|d| d.scaled(6, false));
+        assert_eq!(us("1589163147.368868"), Some(1_589_163_147_368_868));
+        assert_eq!(us("0.0000005"), Some(1), "half rounds away from zero");
+        assert_eq!(us("-0.0000005"), Some(-1));
+        assert_eq!(us("1e-6"), Some(1));
+        assert_eq!(us("2.5E1"), Some(25_000_000));
+        assert_eq!(us("00.000100"), Some(100));
+        assert_eq!(us("9223372036854.775807"), Some(i64::MAX));
+        assert_eq!(us("9223372036854.775808"), None);
+        assert_eq!(dec("1.5").and_then(|d| d.scaled(0, true)), None);
+        assert_eq!(dec("12.000").and_then(|d| d.scaled(0, true)), Some(12));
+        for bad in [
+            "", "-", ".", "1.2.3", "1e", "e5", "1x", "--1", "0x10", "nan", "inf",
+        ] {
+            assert_eq!(dec(bad), None, "{bad:?}");
+        }
+        assert_eq!(
+            dec("123456789012345678901234").and_then(|d| d.scaled(0, false)),
+            None
+        );
+    }
+
+    #[test]
+    fn fields_split_on_spaces_commas_and_semicolons() {
+        fn split(s: &str) -> Result<Vec<String>, &'static str> {
+            let mut f = [&[][..]; MAX_FIELDS];
+            let n = split_fields(s.as_bytes(), &mut f)?;
+            Ok(f[..n]
+                .iter()
+                .map(|x| String::from_utf8_lossy(x).into_owned())
+                .collect())
+        }
+        assert_eq!(split("1 2\t 3  4").unwrap(), ["1", "2", "3", "4"]);
+        assert_eq!(split("1, 2 ,3;4").unwrap(), ["1", "2", "3", "4"]);
+        assert!(split("1,,2,3").is_err());
+        assert!(split("1,2,3,").is_err());
+        assert_eq!(split("").unwrap(), Vec::<String>::new());
+    }
+
+    #[test]
+    fn text_detection() {
+        assert!(looks_like_text(b"0.1 1 2 1\n0.2 3 4 0\n"));
+        assert!(looks_like_text(b"# comment\nt,x,y,p\n1,2,3,1\n"));
+        assert!(looks_like_text(
+            b"timestamp,x,y,polarity,extra\n1,2,3,1,9\n"
+        ));
+        assert!(!looks_like_text(b"hello, not events"));
+        assert!(!looks_like_text(b"1 2 3\n"));
+        assert!(!looks_like_text(b"1 2 3 4\x00\n"));
+    }
+}

@@ -1,0 +1,1140 @@
+//! The readers of AEDAT 2.0 (jAER, DHP19), AEDAT 3.1, Prophesee EVT 2.0 / 3.0 / `.dat` and
+//! text: files built byte by byte from the format descriptions (`support/encoders.rs`),
+//! damaged variants, detection, memory bounds, and proptest fuzzing of every decoder.
+
+#[path = "support/encoders.rs"]
+mod encoders;
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use encoders::*;
+use evpose_core::Event;
+use evpose_host::io::aedat2::Aedat2Reader;
+use evpose_host::io::aedat3::Aedat3Reader;
+use evpose_host::io::aedat4::{Aedat4Reader, Aedat4Writer, Compression};
+use evpose_host::io::dat::DatReader;
+use evpose_host::io::evt::EvtReader;
+use evpose_host::io::text::TextReader;
+use evpose_host::io::{
+    open, open_with, Batch, CameraInfo, EventReader, Format, OpenOptions, ReadError, ReadNotes,
+    TimeUnit, BATCH_EVENTS,
+};
+use proptest::prelude::*;
+
+// ---------------------------------------------------------------------------------------------
+// Allocation tracking: per thread, so that parallel tests do not disturb each other.
+
+struct Counting;
+
+thread_local! {
+    static LIVE: Cell<isize> = const { Cell::new(0) };
+    static PEAK: Cell<isize> = const { Cell::new(0) };
+}
+
+fn track(delta: isize) {
+    let _ = LIVE.try_with(|live| {
+        let v = live.get() + delta;
+        live.set(v);
+        let _ = PEAK.try_with(|p| p.set(p.get().max(v)));
+    });
+}
+
+// SAFETY: forwards to the system allocator; the bookkeeping touches only thread-locals
+// without destructors.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        // SAFETY: same contract as the caller's.
+        let p = unsafe { System.alloc(l) };
+        if !p.is_null() {
+            track(l.size() as isize);
+        }
+        p
+    }
+
+    unsafe fn alloc_zeroed(&self, l: Layout) -> *mut u8 {
+        // SAFETY: same contract as the caller's.
+        let p = unsafe { System.alloc_zeroed(l) };
+        if !p.is_null() {
+            track(l.size() as isize);
+        }
+        p
+    }
+
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(p, l) };
+        track(-(l.size() as isize));
+    }
+
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, new: usize) -> *mut u8 {
+        // SAFETY: same contract as the caller's.
+        let q = unsafe { System.realloc(p, l, new) };
+        if !q.is_null() {
+            track(new as isize - l.size() as isize);
+        }
+        q
+    }
+}
+
+#[global_allocator]
+static ALLOC: Counting = Counting;
+
+/// Runs `f`; returns its result and the peak of this thread's live heap above the start.
+fn peak_heap<T>(f: impl FnOnce() -> T) -> (T, usize) {
+    let start = LIVE.with(Cell::get);
+    PEAK.with(|p| p.set(start));
+    let out = f();
+    let peak = PEAK.with(Cell::get) - start;
+    (out, peak.max(0) as usize)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Helpers.
+
+/// Every event with its camera, the batch sizes, and the notes at the end.
+#[derive(Debug)]
+struct Decoded {
+    events: Vec<(u8, Event)>,
+    batches: Vec<usize>,
+    notes: ReadNotes,
+}
+
+fn drain(mut r: impl EventReader) -> Result<Decoded, ReadError> {
+    let mut out = Decoded {
+        events: Vec::new(),
+        batches: Vec::new(),
+        notes: ReadNotes::default(),
+    };
+    let mut batch = Batch::default();
+    loop {
+        match r.read_batch(&mut batch) {
+            Ok(true) => {}
+            Ok(false) => break,
+            Err(e) => {
+                assert!(batch.is_empty(), "a failed read leaves the batch empty");
+                assert!(
+                    !r.read_batch(&mut batch).unwrap(),
+                    "finished after an error"
+                );
+                return Err(e);
+            }
+        }
+        assert_eq!(batch.events.len(), batch.cameras.len());
+        assert!(!batch.is_empty() && batch.len() <= BATCH_EVENTS);
+        out.batches.push(batch.len());
+        out.events.extend(
+            batch
+                .cameras
+                .iter()
+                .copied()
+                .zip(batch.events.iter().copied()),
+        );
+    }
+    assert!(!r.read_batch(&mut batch).unwrap(), "stays at the end");
+    out.notes = r.notes();
+    Ok(out)
+}
+
+/// The decoders under test, by name, over bytes.
+#[derive(Clone, Copy, Debug)]
+enum Dec {
+    Aedat2,
+    Aedat2Dhp19,
+    Aedat3,
+    Evt2,
+    Evt3,
+    Dat,
+    Text,
+    Aedat4,
+}
+
+const DECODERS: [Dec; 8] = [
+    Dec::Aedat2,
+    Dec::Aedat2Dhp19,
+    Dec::Aedat3,
+    Dec::Evt2,
+    Dec::Evt3,
+    Dec::Dat,
+    Dec::Text,
+    Dec::Aedat4,
+];
+
+fn decode(dec: Dec, bytes: &[u8]) -> Result<Decoded, ReadError> {
+    decode_sized(dec, bytes, None)
+}
+
+fn decode_sized(dec: Dec, bytes: &[u8], size: Option<(u16, u16)>) -> Result<Decoded, ReadError> {
+    match dec {
+        Dec::Aedat2 => drain(Aedat2Reader::new(bytes, Format::Aedat2, size)?),
+        Dec::Aedat2Dhp19 => drain(Aedat2Reader::new(bytes, Format::Aedat2Dhp19, size)?),
+        Dec::Aedat3 => drain(Aedat3Reader::new(bytes, size)?),
+        Dec::Evt2 => drain(EvtReader::new(bytes, Format::Evt2, size)?),
+        Dec::Evt3 => drain(EvtReader::new(bytes, Format::Evt3, size)?),
+        Dec::Dat => drain(DatReader::new(bytes, size)?),
+        Dec::Text => drain(TextReader::new(bytes, None, size)?),
+        Dec::Aedat4 => drain(Aedat4Reader::new(bytes)?),
+    }
+}
+
+fn events_of(expected: &[Ev]) -> Vec<(u8, Event)> {
+    expected
+        .iter()
+        .map(|e| (e.cam, Event::new(e.x, e.y, e.t, e.on)))
+        .collect()
+}
+
+fn corrupt_offset(r: Result<Decoded, ReadError>) -> u64 {
+    match r {
+        Err(ReadError::Corrupt { offset, .. }) => offset,
+        other => panic!("expected a Corrupt error, got {other:?}"),
+    }
+}
+
+fn error_text(r: Result<Decoded, ReadError>) -> String {
+    match r {
+        Err(e) => e.to_string(),
+        Ok(d) => panic!("expected an error, got {} events", d.events.len()),
+    }
+}
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/formats")
+        .join(name)
+}
+
+// ---------------------------------------------------------------------------------------------
+// AEDAT 2.0.
+
+#[test]
+fn aedat2_davis346_decodes_spec_bytes() {
+    let mut f = aedat2_header(Some("eu.seebetter.ini.chips.davis.DAVIS346B"), true);
+    let start = f.len() as u64;
+    // Corners, both polarities: y_raw = 259 - y.
+    aedat2_record(&mut f, davis_addr(0, 0, true, 260), 100);
+    aedat2_record(&mut f, davis_addr(345, 259, false, 260), 101);
+    // By hand: x = 17, y_raw = 200 (y = 59), ON.
+    aedat2_record(&mut f, (200 << 22) | (17 << 12) | (1 << 11), 102);
+    // APS sample (bit 31), IMU sample (bits 31 and 11), special event (bit 10): skipped.
+    aedat2_record(&mut f, 0x8000_0000 | (5 << 12), 103);
+    aedat2_record(&mut f, 0x8000_0C00, 104);
+    aedat2_record(&mut f, 0x0000_0400, 105);
+    aedat2_record(&mut f, davis_addr(10, 20, false, 260), 106);
+    let d = decode(Dec::Aedat2, &f).unwrap();
+    assert_eq!(
+        d.events,
+        events_of(&[
+            ev(0, 0, 0, 100, true),
+            ev(0, 345, 259, 101, false),
+            ev(0, 17, 59, 102, true),
+            ev(0, 10, 20, 106, false),
+        ])
+    );
+    assert_eq!(d.notes.skipped_records, 3);
+    assert!(d.notes.assumptions[0].contains("DAVIS346B"));
+    let r = Aedat2Reader::new(&f[..], Format::Aedat2, None).unwrap();
+    assert_eq!(r.info().format, Format::Aedat2Davis346);
+    assert_eq!(r.info().cameras.len(), 1);
+    assert_eq!(r.info().cameras[0].width, Some(346));
+    assert_eq!(r.info().cameras[0].name.as_deref(), Some("DAVIS346B"));
+    // x = 346 is outside the sensor: an error at that record.
+    let mut bad = f.clone();
+    aedat2_record(&mut bad, 346 << 12, 107);
+    assert_eq!(
+        corrupt_offset(decode(Dec::Aedat2, &bad)),
+        start + 7 * 8,
+        "offset of the 8th record"
+    );
+    // y_raw = 260 too.
+    let mut bad = f.clone();
+    aedat2_record(&mut bad, 260 << 22, 107);
+    assert!(error_text(decode(Dec::Aedat2, &bad)).contains("outside the 346x260 sensor"));
+}
+
+#[test]
+fn aedat2_sensor_choice() {
+    let events = [ev(0, 239, 0, 5, true), ev(0, 0, 179, 6, false)];
+    let mut f = aedat2_header(Some("eu.seebetter.ini.chips.davis.DAVIS240C"), false);
+    for e in &events {
+        aedat2_record(&mut f, davis_addr(e.x, e.y, e.on, 180), e.t as u32);
+    }
+    // Header without the end marker: the data starts at the first byte that is not '#'.
+    let d = decode(Dec::Aedat2, &f).unwrap();
+    assert_eq!(d.events, events_of(&events));
+    let r = Aedat2Reader::new(&f[..], Format::Aedat2, None).unwrap();
+    assert_eq!(r.info().format, Format::Aedat2Davis240);
+
+    // --format overrides the header, and says so.
+    let r = Aedat2Reader::new(&f[..], Format::Aedat2Davis346, None).unwrap();
+    let d = drain(r).unwrap();
+    assert!(d.notes.assumptions.iter().any(|a| a.contains("overrides")));
+    // y = 0 on the 180-row sensor is y_raw = 179, which a 260-row flip puts at 259 - 179.
+    assert_eq!(d.events[0].1.y, 80, "flipped with the forced height");
+
+    // No AEChip line: refused unless the sensor is given.
+    let mut bare = aedat2_header(None, true);
+    bare.extend_from_slice(
+        &f[aedat2_header(Some("eu.seebetter.ini.chips.davis.DAVIS240C"), false).len()..],
+    );
+    let msg = error_text(decode(Dec::Aedat2, &bare));
+    assert!(msg.contains("--format aedat2-davis346"), "{msg}");
+    let d = drain(Aedat2Reader::new(&bare[..], Format::Aedat2Davis240, None).unwrap()).unwrap();
+    assert_eq!(d.events, events_of(&events));
+
+    // No header at all: only with a sensor given.
+    let body = &bare[aedat2_header(None, true).len()..];
+    assert!(decode(Dec::Aedat2, body).is_err());
+    let d = drain(Aedat2Reader::new(body, Format::Aedat2Davis240, None).unwrap()).unwrap();
+    assert_eq!(d.events, events_of(&events));
+
+    // A DAVIS of unknown size needs --width/--height.
+    let mut odd = aedat2_header(Some("eu.seebetter.ini.chips.davis.DavisFuture"), true);
+    aedat2_record(&mut odd, davis_addr(3, 4, true, 100), 9);
+    assert!(error_text(decode(Dec::Aedat2, &odd)).contains("--width"));
+    let d = decode_sized(Dec::Aedat2, &odd, Some((200, 100))).unwrap();
+    assert_eq!(d.events, events_of(&[ev(0, 3, 4, 9, true)]));
+
+    // Other versions.
+    for (magic, what) in [("#!AER-DAT1.0\r\n", "1.0"), ("#!AER-DAT3.1\r\n", "3.1")] {
+        let msg = error_text(decode(Dec::Aedat2, magic.as_bytes()));
+        assert!(msg.contains(what), "{msg}");
+    }
+}
+
+#[test]
+fn data_starting_with_the_comment_byte_ends_the_header() {
+    // AEDAT 2.0 without the end marker; the first address byte is '#' (0x23): y_raw = 140.
+    let mut f = aedat2_header(Some("DAVIS346B"), false);
+    aedat2_record(&mut f, 0x2300_0000 | (7 << 12), 5);
+    let d = decode(Dec::Aedat2, &f).unwrap();
+    assert_eq!(d.events, events_of(&[ev(0, 7, 259 - 140, 5, false)]));
+    // RAW without `% end`; the first word's first byte is '%' (0x25).
+    let mut f = raw_header(&["evt 2.0"]);
+    evt2_word(&mut f, 0x8000_0025);
+    evt2_word(&mut f, evt2_cd(1, 2, true, 0));
+    let d = decode(Dec::Evt2, &f).unwrap();
+    assert_eq!(d.events, events_of(&[ev(0, 1, 2, 0x25 << 6, true)]));
+}
+
+#[test]
+fn aedat2_dvs128_layout() {
+    let mut f = aedat2_header(Some("ch.unizh.ini.jaer.chip.retina.Tmpdiff128"), true);
+    // By hand: y = 5, x_raw = 0 (x = 127), polarity bit 0 = 0 is ON.
+    aedat2_record(&mut f, 5 << 8, 10);
+    aedat2_record(&mut f, dvs128_addr(0, 127, false), 11);
+    aedat2_record(&mut f, 0x8000, 12); // sync event: skipped
+    let d = decode(Dec::Aedat2, &f).unwrap();
+    assert_eq!(
+        d.events,
+        events_of(&[ev(0, 127, 5, 10, true), ev(0, 0, 127, 11, false)])
+    );
+    assert_eq!(d.notes.skipped_records, 1);
+}
+
+#[test]
+fn aedat2_dhp19_four_cameras() {
+    let events = synthetic(500, 346, 260, 4, 1_000);
+    let f = aedat2_davis346(&events, true);
+    let r = Aedat2Reader::new(&f[..], Format::Aedat2, None).unwrap();
+    assert_eq!(r.info().format, Format::Aedat2Dhp19);
+    let ids: Vec<u8> = r.info().cameras.iter().map(|c| c.id).collect();
+    assert_eq!(ids, [0, 1, 2, 3]);
+    assert!(r
+        .info()
+        .cameras
+        .iter()
+        .all(|c| c.width == Some(346) && c.height == Some(260)));
+    assert_eq!(drain(r).unwrap().events, events_of(&events));
+    // Camera id 4 is impossible.
+    let mut bad = f.clone();
+    aedat2_record(&mut bad, davis_addr(1, 1, true, 260) | 4, 2_000);
+    let msg = error_text(decode(Dec::Aedat2, &bad));
+    assert!(msg.contains("camera id 4"), "{msg}");
+}
+
+#[test]
+fn aedat2_timestamps_unwrap() {
+    let mut f = aedat2_header(Some("DAVIS346B"), true);
+    let a = |f: &mut Vec<u8>, ts: u32| aedat2_record(f, davis_addr(1, 1, true, 260), ts);
+    a(&mut f, u32::MAX - 10);
+    a(&mut f, 5); // wrapped
+    a(&mut f, u32::MAX - 3); // late event from before the wrap
+    a(&mut f, 20);
+    a(&mut f, 0x8000_0000); // jAER's signed overflow (2^31) is no wrap of the u32
+    let d = decode(Dec::Aedat2, &f).unwrap();
+    let t: Vec<i64> = d.events.iter().map(|(_, e)| e.t).collect();
+    let w = 1i64 << 32;
+    assert_eq!(t, [w - 11, w + 5, w - 4, w + 20, w + (1 << 31)]);
+    assert_eq!(d.notes.timestamp_wraps, 1);
+}
+
+#[test]
+fn aedat2_header_is_bounded() {
+    // A '#' line without an end is refused after 64 KiB, without reading on.
+    let mut f = b"#!AER-DAT2.0\r\n#".to_vec();
+    f.extend(std::iter::repeat_n(b'a', 100_000));
+    let (r, peak) = peak_heap(|| decode(Dec::Aedat2Dhp19, &f));
+    assert!(error_text(r).contains("header line is longer"));
+    assert!(peak < 1 << 20, "peak {peak}");
+    // More than 1 MiB of header lines is refused.
+    let mut f = b"#!AER-DAT2.0\r\n".to_vec();
+    for _ in 0..20_000 {
+        f.extend_from_slice(
+            b"# <entry key=\"some.preference\" value=\"a long preference value\"/>\r\n",
+        );
+    }
+    assert!(error_text(decode(Dec::Aedat2Dhp19, &f)).contains("header is longer"));
+}
+
+// ---------------------------------------------------------------------------------------------
+// AEDAT 3.1.
+
+#[test]
+fn aedat3_decodes_packets_and_sources() {
+    let mut f = aedat3_header(&[(1, "DAVIS346B")]);
+    // A special-event packet (type 0, 8-byte events): skipped.
+    aedat3_packet_header(&mut f, 0, 1, 8, 4, 0, 2, 2, 2);
+    f.extend_from_slice(&[0u8; 16]);
+    // Polarity packet, overflow 1, capacity 4, number 3 (one invalid), one unused slot.
+    aedat3_packet_header(&mut f, 1, 1, 8, 4, 1, 4, 3, 2);
+    aedat3_polarity(&mut f, 345, 259, true, true, 7);
+    aedat3_polarity(&mut f, 3, 4, true, false, 8);
+    aedat3_polarity(&mut f, 0, 0, false, true, 0x7FFF_FFFF);
+    f.extend_from_slice(&[0xEE; 8]); // unused capacity: never read
+                                     // By hand: x = 2, y = 3, ON, valid: data = 2 << 17 | 3 << 2 | 2 | 1.
+    aedat3_packet_header(&mut f, 1, 7, 8, 4, 0, 1, 1, 1);
+    f.extend_from_slice(&((2u32 << 17) | (3 << 2) | 3).to_le_bytes());
+    f.extend_from_slice(&9i32.to_le_bytes());
+    let d = decode(Dec::Aedat3, &f).unwrap();
+    let o = 1i64 << 31;
+    assert_eq!(
+        d.events,
+        events_of(&[
+            ev(0, 345, 259, o + 7, true),
+            ev(0, 0, 0, o + 0x7FFF_FFFF, false),
+            ev(1, 2, 3, 9, true),
+        ])
+    );
+    assert_eq!(d.notes.skipped_packets, 1);
+    assert_eq!(d.notes.skipped_records, 1);
+    let r = Aedat3Reader::new(&f[..], None).unwrap();
+    assert_eq!(
+        r.info().cameras,
+        [CameraInfo {
+            id: 0,
+            width: Some(346),
+            height: Some(260),
+            name: Some("DAVIS346B".into()),
+        }]
+    );
+}
+
+#[test]
+fn aedat3_damage_is_typed_and_located() {
+    let head = aedat3_header(&[(1, "DAVIS346B")]);
+    let at = head.len() as u64;
+    let packet = |f: &mut Vec<u8>, ty: i16, size: i32, off: i32, cap: i32, num: i32| {
+        aedat3_packet_header(f, ty, 1, size, off, 0, cap, num, num);
+    };
+    let cases: Vec<(&str, Vec<u8>)> = vec![
+        ("unknown packet type 14", {
+            let mut f = head.clone();
+            packet(&mut f, 14, 8, 4, 0, 0);
+            f
+        }),
+        ("event counts out of range", {
+            let mut f = head.clone();
+            packet(&mut f, 1, 8, 4, 1, 2);
+            f
+        }),
+        ("expected 8 and 4", {
+            let mut f = head.clone();
+            packet(&mut f, 1, 16, 4, 1, 1);
+            f.extend_from_slice(&[1; 16]);
+            f
+        }),
+        ("exceeds", {
+            // 2^31 - 1 events of 8 bytes: refused before any allocation.
+            let mut f = head.clone();
+            packet(&mut f, 1, 8, 4, i32::MAX, 0);
+            f
+        }),
+    ];
+    for (what, f) in cases {
+        let (r, peak) = peak_heap(|| decode(Dec::Aedat3, &f));
+        match r {
+            Err(ReadError::Corrupt { offset, message }) => {
+                assert_eq!(offset, at, "{what}");
+                assert!(message.contains(what), "{what}: {message}");
+            }
+            other => panic!("{what}: {other:?}"),
+        }
+        assert!(peak < 4 << 20, "{what}: peak {peak}");
+    }
+    let mut f = head.clone();
+    packet(&mut f, 1, 8, 4, 1, 1);
+    aedat3_polarity(&mut f, 1, 1, true, true, -5);
+    assert!(error_text(decode(Dec::Aedat3, &f)).contains("negative event timestamp"));
+    // Truncated inside a packet: names the packet.
+    let mut f = head.clone();
+    packet(&mut f, 1, 8, 4, 2, 2);
+    aedat3_polarity(&mut f, 1, 1, true, true, 5);
+    match decode(Dec::Aedat3, &f) {
+        Err(ReadError::Truncated { offset, .. }) => assert_eq!(offset, at),
+        other => panic!("{other:?}"),
+    }
+    // A header without its end line.
+    let msg = error_text(decode(
+        Dec::Aedat3,
+        b"#!AER-DAT3.1\r\n#Format: RAW\r\n\x01\x00",
+    ));
+    assert!(msg.contains("#!END-HEADER"), "{msg}");
+    let msg = error_text(decode(
+        Dec::Aedat3,
+        b"#!AER-DAT3.1\r\n#Format: SerializedTS\r\n",
+    ));
+    assert!(msg.contains("only RAW"), "{msg}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Prophesee EVT 2.0 / 3.0.
+
+#[test]
+fn evt2_decodes_spec_words() {
+    let mut f = raw_header(&[
+        "camera_integrator_name Prophesee",
+        "evt 2.0",
+        "format EVT2;height=720;width=1280",
+        "geometry 1280x720",
+        "end",
+    ]);
+    let start = f.len() as u64;
+    evt2_word(&mut f, evt2_cd(1, 1, true, 0)); // before any TIME_HIGH: dropped
+    evt2_word(&mut f, evt2_time_high(1_000_000));
+    evt2_word(&mut f, evt2_cd(1279, 719, true, 1_000_000 + 5));
+    // By hand: CD_OFF, t low 63, x = 2, y = 3.
+    evt2_word(&mut f, (63 << 22) | (2 << 11) | 3);
+    evt2_word(&mut f, 0xA000_0001); // EXT_TRIGGER: skipped
+                                    // Time high wraps (28 bits): 2^34 µs later the counter starts again.
+    evt2_word(&mut f, evt2_time_high((1 << 34) - 64));
+    evt2_word(&mut f, evt2_time_high(64));
+    evt2_word(&mut f, evt2_cd(4, 5, false, 64 + 1));
+    let d = decode(Dec::Evt2, &f).unwrap();
+    let base = 1_000_000 / 64 * 64;
+    assert_eq!(
+        d.events,
+        events_of(&[
+            ev(0, 1279, 719, base + 5, true),
+            ev(0, 2, 3, base + 63, false),
+            ev(0, 4, 5, (1 << 34) + 64 + 1, false),
+        ])
+    );
+    assert_eq!(d.notes.dropped_events, 1);
+    assert_eq!(d.notes.skipped_records, 1);
+    assert_eq!(d.notes.timestamp_wraps, 1);
+    let r = EvtReader::new(&f[..], Format::Raw, None).unwrap();
+    assert_eq!(r.info().format, Format::Evt2);
+    assert_eq!(r.info().cameras[0].width, Some(1280));
+    assert_eq!(r.info().cameras[0].height, Some(720));
+    assert_eq!(r.info().cameras[0].name.as_deref(), Some("Prophesee"));
+
+    // A reserved type, a pixel outside the sensor, half a word.
+    let mut bad = f.clone();
+    evt2_word(&mut bad, 0x3000_0000);
+    assert_eq!(corrupt_offset(decode(Dec::Evt2, &bad)), start + 8 * 4);
+    let mut bad = f.clone();
+    evt2_word(&mut bad, evt2_cd(1280, 0, true, 0));
+    assert!(error_text(decode(Dec::Evt2, &bad)).contains("outside the 1280x720 sensor"));
+    let mut bad = f.clone();
+    bad.extend_from_slice(&[1, 2]);
+    match decode(Dec::Evt2, &bad) {
+        Err(ReadError::Truncated { offset, .. }) => assert_eq!(offset, start + 8 * 4),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn evt3_decodes_spec_words() {
+    let mut f = raw_header(&["evt 3.0", "format EVT3;height=720;width=1280", "end"]);
+    let start = f.len() as u64;
+    evt3_word(&mut f, 0x0, 7); // ADDR_Y before any time: sets y
+    evt3_word(&mut f, 0x2, 9); // ADDR_X: no time base yet, dropped
+    evt3_word(&mut f, 0x8, 0x123); // TIME_HIGH
+    evt3_word(&mut f, 0x6, 0x456); // TIME_LOW: t = 0x123456
+    evt3_word(&mut f, 0x2, (1 << 11) | 1279); // ON at x = 1279, y = 7
+    evt3_word(&mut f, 0x0, 100); // y = 100
+    evt3_word(&mut f, 0x3, 40); // VECT_BASE_X 40, OFF
+    evt3_word(&mut f, 0x4, 0b1000_0000_0101); // x = 40, 42, 51
+    evt3_word(&mut f, 0x5, 0b1000_0001); // base now 52: x = 52, 59
+    evt3_word(&mut f, 0xA, 0); // EXT_TRIGGER
+    evt3_word(&mut f, 0xE, 0); // OTHERS
+    evt3_word(&mut f, 0x7, 0); // CONTINUED_4
+    evt3_word(&mut f, 0x8, 0xFFF); // TIME_HIGH 4095
+    evt3_word(&mut f, 0x8, 0x001); // wraps (12 bits): + 2^24
+    evt3_word(&mut f, 0x6, 0x002);
+    evt3_word(&mut f, 0x2, 3); // OFF at x = 3, y = 100
+    let d = decode(Dec::Evt3, &f).unwrap();
+    let t = 0x123456;
+    let wrapped = (1 << 24) + 0x001002;
+    assert_eq!(
+        d.events,
+        events_of(&[
+            ev(0, 1279, 7, t, true),
+            ev(0, 40, 100, t, false),
+            ev(0, 42, 100, t, false),
+            ev(0, 51, 100, t, false),
+            ev(0, 52, 100, t, false),
+            ev(0, 59, 100, t, false),
+            ev(0, 3, 100, wrapped, false),
+        ])
+    );
+    assert_eq!(d.notes.dropped_events, 1);
+    assert_eq!(d.notes.skipped_records, 3);
+    assert_eq!(d.notes.timestamp_wraps, 1);
+
+    // Reserved type 0x1; a vector running past the sensor's edge.
+    let mut bad = f.clone();
+    evt3_word(&mut bad, 0x1, 0);
+    assert_eq!(corrupt_offset(decode(Dec::Evt3, &bad)), start + 16 * 2);
+    let mut bad = f.clone();
+    evt3_word(&mut bad, 0x3, 1275);
+    evt3_word(&mut bad, 0x4, 1 << 5);
+    assert!(error_text(decode(Dec::Evt3, &bad)).contains("x = 1280"));
+    // Without a size every x up to 65535 is taken; beyond is an error.
+    let mut wide = raw_header(&["evt 3.0"]);
+    evt3_word(&mut wide, 0x8, 0);
+    evt3_word(&mut wide, 0x0, 0);
+    evt3_word(&mut wide, 0x3, 2047);
+    for _ in 0..5500 {
+        evt3_word(&mut wide, 0x4, 0);
+    }
+    evt3_word(&mut wide, 0x4, 1);
+    assert!(error_text(decode(Dec::Evt3, &wide)).contains("16 bits"));
+}
+
+#[test]
+fn evt_round_trips_and_batches() {
+    let events = synthetic(200_000, 1280, 720, 1, 0);
+    for (dec, body) in [
+        (Dec::Evt2, evt2_body(&events)),
+        (Dec::Evt3, evt3_body(&events)),
+    ] {
+        let mut f = raw_header(&["format EVT3;height=720;width=1280"]);
+        f.extend_from_slice(&body);
+        let d = decode(dec, &f).unwrap();
+        assert_eq!(d.events, events_of(&events), "{dec:?}");
+        assert!(d.batches.len() >= 3);
+    }
+}
+
+#[test]
+fn raw_header_encoding_and_size() {
+    let mut f = raw_header(&["evt 2.0"]);
+    evt2_word(&mut f, evt2_time_high(0));
+    evt2_word(&mut f, evt2_cd(5, 6, true, 0));
+    // No size in the header: the fallback is used, and checked.
+    let r = EvtReader::new(&f[..], Format::Raw, Some((640, 480))).unwrap();
+    assert_eq!(r.info().cameras[0].width, Some(640));
+    assert!(drain(r).unwrap().notes.assumptions[0].contains("640x480"));
+    assert!(decode_sized(Dec::Evt2, &f, Some((5, 5))).is_err());
+    // No encoding named: RAW asks for --format; EVT 2.1 is refused; --format overrides.
+    let anon = [
+        &raw_header(&["date 2020"])[..],
+        &f[raw_header(&["evt 2.0"]).len()..],
+    ]
+    .concat();
+    let msg = EvtReader::new(&anon[..], Format::Raw, None)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(msg.contains("--format evt2"), "{msg}");
+    assert!(EvtReader::new(&raw_header(&["evt 2.1"])[..], Format::Raw, None).is_err());
+    let d = drain(EvtReader::new(&f[..], Format::Evt3, None).unwrap());
+    // EVT 2.0 words read as EVT 3.0 are garbage, but the override is on record (or it fails).
+    if let Ok(d) = d {
+        assert!(d.notes.assumptions[0].contains("overrides"));
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Prophesee .dat.
+
+#[test]
+fn dat_decodes_records() {
+    let events = [ev(0, 1279, 719, 10, true), ev(0, 0, 0, 11, false)];
+    let mut f = dat_file(&events, 1280, 720);
+    let start = dat_file(&[], 1280, 720).len() as u64;
+    // By hand: t = 12, x = 7, y = 8, polarity 1.
+    dat_record(&mut f, 12, 7 | (8 << 14) | (1 << 28));
+    // Wrap of the 32-bit time.
+    dat_record(&mut f, u32::MAX, 0);
+    dat_record(&mut f, 3, 0);
+    let d = decode(Dec::Dat, &f).unwrap();
+    let w = 1i64 << 32;
+    assert_eq!(
+        d.events,
+        events_of(&[
+            events[0],
+            events[1],
+            ev(0, 7, 8, 12, true),
+            ev(0, 0, 0, w - 1, false),
+            ev(0, 0, 0, w + 3, false)
+        ])
+    );
+    assert_eq!(d.notes.timestamp_wraps, 1);
+    let r = DatReader::new(&f[..], None).unwrap();
+    assert_eq!(r.info().cameras[0].width, Some(1280));
+
+    let mut bad = f.clone();
+    dat_record(&mut bad, 13, 2 << 28);
+    assert_eq!(corrupt_offset(decode(Dec::Dat, &bad)), start + 5 * 8);
+    let mut bad = f.clone();
+    dat_record(&mut bad, 13, 720 << 14);
+    assert!(error_text(decode(Dec::Dat, &bad)).contains("outside"));
+    let trig = [&f[..start as usize - 2], &[0x0E, 8][..]].concat();
+    assert!(error_text(decode(Dec::Dat, &trig)).contains("external-trigger"));
+    let size16 = [&f[..start as usize - 2], &[0x0C, 16][..]].concat();
+    assert!(error_text(decode(Dec::Dat, &size16)).contains("event size 16"));
+    let v1 = b"% Version 1\n\x00\x08".to_vec();
+    assert!(error_text(decode(Dec::Dat, &v1)).contains("version"));
+    // No header: records from the first byte.
+    let body = &f[start as usize..];
+    let d = decode(Dec::Dat, body).unwrap();
+    assert_eq!(d.events.len(), 5);
+    assert!(d.notes.assumptions[0].contains("no header"));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Text.
+
+fn text(bytes: &[u8], unit: Option<TimeUnit>) -> Result<Decoded, ReadError> {
+    drain(TextReader::new(bytes, unit, None)?)
+}
+
+#[test]
+fn text_layouts_and_units() {
+    // RPG layout, seconds detected from the decimal point; comments; CRLF; no final newline.
+    let rpg = b"# events.txt\r\n0.000000000 33 39 1\r\n\r\n1589163147.368868 1 2 0\r\n1e-6 3 4 -1";
+    let d = text(rpg, None).unwrap();
+    assert_eq!(
+        d.events,
+        events_of(&[
+            ev(0, 33, 39, 0, true),
+            ev(0, 1, 2, 1_589_163_147_368_868, false),
+            ev(0, 3, 4, 1, false),
+        ])
+    );
+    assert!(d.notes.assumptions[0].contains("timestamps in s"));
+    // Integer timestamps: microseconds.
+    let d = text(b"100 1 2 1\n101 3 4 0\n", None).unwrap();
+    assert_eq!(d.events[1].1, Event::new(3, 4, 101, false));
+    assert!(d.notes.assumptions[0].contains("timestamps in us"));
+    // ... unless --time-unit says otherwise.
+    let d = text(b"100 1 2 1\n", Some(TimeUnit::Ms)).unwrap();
+    assert_eq!(d.events[0].1.t, 100_000);
+    let d = text(b"1500 1 2 1\n", Some(TimeUnit::Ns)).unwrap();
+    assert_eq!(d.events[0].1.t, 2, "rounded half away from zero");
+    // A header row: any column order, extra columns, a unit suffix, CSV with a BOM.
+    let csv = b"\xEF\xBB\xBFx,y,polarity,t_ms,extra\n5,6,1,2.5,x9\n7, 8 ,0,3,x\n";
+    let d = text(csv, None).unwrap();
+    assert_eq!(
+        d.events,
+        events_of(&[ev(0, 5, 6, 2_500, true), ev(0, 7, 8, 3_000, false)])
+    );
+    assert!(d.notes.assumptions.iter().any(|a| a.contains("header row")));
+}
+
+#[test]
+fn text_damage_names_the_line() {
+    // Integer microseconds detected from the first 1000 lines; a fraction after them.
+    let late = [b"1 2 3 1\n".repeat(1000), b"2.5 3 4 1\n".to_vec()].concat();
+    let msg = error_text(text(&late, None));
+    assert!(
+        msg.contains("line 1001") && msg.contains("fraction of a microsecond"),
+        "{msg}"
+    );
+    let cases: [(&[u8], &str); 7] = [
+        (b"1 2 3 1\n2 3 4\n", "line 2: 3 fields"),
+        (b"1 2 3 1\n2 3 4 5\n", "line 2: polarity"),
+        (b"1,2,,1\n", "empty field"),
+        (b"1 -2 3 1\n", "x \"-2\""),
+        (b"1 2 70000 1\n", "y \"70000\""),
+        (b"99999999999999999999 2 3 1\n", "timestamp"),
+        (b"t,x,y\n1,2,3\n", "t, x, y and p"),
+    ];
+    for (bytes, want) in cases {
+        let msg = error_text(text(bytes, None));
+        assert!(msg.contains(want), "{want}: {msg}");
+    }
+    // Offsets name the line start.
+    match text(b"1 2 3 1\n2 3 4\n", None) {
+        Err(ReadError::Corrupt { offset, .. }) => assert_eq!(offset, 8),
+        other => panic!("{other:?}"),
+    }
+    // Overlong lines stop reading instead of buffering.
+    let long = [b"1 2 3 1\n".to_vec(), vec![b'1'; 10_000]].concat();
+    assert!(error_text(text(&long, None)).contains("longer than"));
+    // A sensor size checks the coordinates.
+    let r = TextReader::new(&b"1 400 3 1\n"[..], None, Some((346, 260))).unwrap();
+    assert!(drain(r)
+        .unwrap_err()
+        .to_string()
+        .contains("outside the 346x260"));
+}
+
+#[test]
+fn text_round_trip_many_lines() {
+    let events = synthetic(150_000, 346, 260, 1, 1_589_163_147_000_000);
+    let d = text(&text_seconds(&events), None).unwrap();
+    assert_eq!(d.events, events_of(&events));
+    assert!(d.batches.len() >= 3);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Detection and `open`.
+
+/// One small file per format, as the detection and fuzz seeds.
+fn seeds() -> Vec<(&'static str, Dec, Format, Vec<u8>)> {
+    let e = synthetic(40, 346, 260, 4, 1_000);
+    let one: Vec<Ev> = e.iter().map(|e| Ev { cam: 0, ..*e }).collect();
+    let mut evt2 = raw_header(&["evt 2.0", "format EVT2;height=260;width=346", "end"]);
+    evt2.extend_from_slice(&evt2_body(&one));
+    let mut evt3 = raw_header(&["evt 3.0", "format EVT3;height=260;width=346", "end"]);
+    evt3.extend_from_slice(&evt3_body(&one));
+    let cams = [
+        CameraInfo {
+            id: 0,
+            width: Some(346),
+            height: Some(260),
+            name: Some("DAVIS346_00000001".into()),
+        },
+        CameraInfo {
+            id: 1,
+            width: Some(346),
+            height: Some(260),
+            name: None,
+        },
+    ];
+    let mut w = Aedat4Writer::new(Vec::new(), &cams, Compression::Lz4).unwrap();
+    let mut b = Batch::default();
+    for x in &e {
+        b.push(x.cam % 2, Event::new(x.x, x.y, x.t, x.on));
+    }
+    w.write(&b).unwrap();
+    vec![
+        (
+            "dhp19.aedat",
+            Dec::Aedat2,
+            Format::Aedat2,
+            aedat2_davis346(&e, true),
+        ),
+        (
+            "davis346.aedat3",
+            Dec::Aedat3,
+            Format::Aedat3,
+            aedat3_file(&e, 4),
+        ),
+        ("evt2.raw", Dec::Evt2, Format::Raw, evt2),
+        ("evt3.raw", Dec::Evt3, Format::Raw, evt3),
+        ("cd.dat", Dec::Dat, Format::Dat, dat_file(&one, 346, 260)),
+        ("rpg.txt", Dec::Text, Format::Text, text_seconds(&one)),
+        (
+            "two-cameras.aedat4",
+            Dec::Aedat4,
+            Format::Aedat4,
+            w.finish().unwrap(),
+        ),
+    ]
+}
+
+/// The seed files are committed (`tests/fixtures/formats/`, a few hundred bytes each) so that
+/// external fuzzers can start from them; they must stay what the encoders build. Regenerate
+/// with `EVPOSE_BLESS=1 cargo test -p evpose-host --test formats seed`.
+#[test]
+fn seed_fixtures_match_their_builders() {
+    for (name, dec, _, bytes) in seeds() {
+        let path = fixture(name);
+        if std::env::var_os("EVPOSE_BLESS").is_some() {
+            std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+            std::fs::write(&path, &bytes).unwrap();
+        }
+        let stored = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        assert_eq!(stored, bytes, "{name} differs from its builder");
+        assert!(bytes.len() < 4096, "{name}: seeds stay small");
+        decode(dec, &bytes).unwrap_or_else(|e| panic!("{name}: {e}"));
+    }
+}
+
+#[test]
+fn detection_and_open_dispatch() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, _, format, bytes) in seeds() {
+        assert_eq!(Format::detect(&bytes), Some(format), "{name}");
+        let path = dir.path().join(name);
+        std::fs::write(&path, &bytes).unwrap();
+        let mut r = open(&path, None).unwrap();
+        let mut b = Batch::default();
+        assert!(r.read_batch(&mut b).unwrap(), "{name}");
+    }
+    assert_eq!(Format::detect(b"\x93NUMPY\x01\x00"), Some(Format::Npy));
+    assert_eq!(Format::detect(b"#!AER-DAT4.0\r\n"), Some(Format::Aedat4));
+    assert_eq!(
+        Format::detect(b"% Height 10\n% Width 10\n\x0c\x08"),
+        Some(Format::Dat)
+    );
+    assert_eq!(Format::detect(b"% end\n"), Some(Format::Raw));
+    assert_eq!(
+        Format::detect(b"% comment\n0.5 1 2 1\n"),
+        Some(Format::Text)
+    );
+    assert_eq!(Format::detect(b"\x00\x01\x02"), None);
+    // A `.raw` without `% evt`: opened as RAW, which asks for the encoding.
+    let path = dir.path().join("old.raw");
+    std::fs::write(&path, b"% date 2019\n\x00\x00\x00\x80").unwrap();
+    let err = open(&path, None).err().unwrap().to_string();
+    assert!(err.contains("--format evt2"), "{err}");
+    let r = open(&path, Some(Format::Evt2)).unwrap();
+    assert_eq!(r.info().format, Format::Evt2);
+    // The size fallback reaches formats that state none, npy included.
+    let npy = dir.path().join("e.npy");
+    evpose_host::npy::write(&npy, &[1, 4], &[1.0f64, 2.0, 3.0, 1.0]).unwrap();
+    let opts = OpenOptions {
+        size: Some((346, 260)),
+        ..OpenOptions::default()
+    };
+    let r = open_with(&npy, &opts).unwrap();
+    assert_eq!(r.info().cameras[0].width, Some(346));
+}
+
+#[test]
+fn format_names_match_the_cli_and_json() {
+    use clap::ValueEnum;
+    for f in Format::ALL {
+        let v = f.to_possible_value().unwrap();
+        assert_eq!(v.get_name(), f.name());
+        assert_eq!(serde_json::to_value(f).unwrap(), f.name());
+        assert_eq!(Format::from_str(f.name(), false).unwrap(), f);
+    }
+    assert_eq!(Format::from_str("csv", false).unwrap(), Format::Text);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Memory: constant in the file size.
+
+/// A header then `blocks` copies of `block`, produced on the fly.
+struct Repeat {
+    header: Vec<u8>,
+    block: Vec<u8>,
+    blocks: usize,
+    pos: usize,
+}
+
+impl Read for Repeat {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let total = self.header.len() + self.block.len() * self.blocks;
+        let mut n = 0;
+        while n < buf.len() && self.pos < total {
+            let (src, at) = if self.pos < self.header.len() {
+                (&self.header, self.pos)
+            } else {
+                (
+                    &self.block,
+                    (self.pos - self.header.len()) % self.block.len(),
+                )
+            };
+            let k = (src.len() - at).min(buf.len() - n);
+            buf[n..n + k].copy_from_slice(&src[at..at + k]);
+            n += k;
+            self.pos += k;
+        }
+        Ok(n)
+    }
+}
+
+/// (decoder, header, block of `events` events) for each streaming format.
+fn repeatable() -> Vec<(Dec, Vec<u8>, Vec<u8>)> {
+    let e = synthetic(4096, 346, 260, 1, 0);
+    let mut evt_head = raw_header(&["format EVT3;height=260;width=346", "end"]);
+    let aedat4 = {
+        let cams = [CameraInfo {
+            id: 0,
+            width: Some(346),
+            height: Some(260),
+            name: None,
+        }];
+        let header = Aedat4Writer::new(Vec::new(), &cams, Compression::Lz4)
+            .unwrap()
+            .finish()
+            .unwrap();
+        let mut w = Aedat4Writer::new(Vec::new(), &cams, Compression::Lz4).unwrap();
+        let mut b = Batch::default();
+        for x in &e {
+            b.push(0, Event::new(x.x, x.y, x.t, x.on));
+        }
+        w.write(&b).unwrap();
+        let all = w.finish().unwrap();
+        (header.clone(), all[header.len()..].to_vec())
+    };
+    let dat = dat_file(&e, 346, 260);
+    let dat_head = dat_file(&[], 346, 260);
+    let a2_head = aedat2_header(Some("DAVIS346B"), true);
+    let mut a2 = Vec::new();
+    for x in &e {
+        aedat2_record(&mut a2, davis_addr(x.x, x.y, x.on, 260), x.t as u32);
+    }
+    let a3_head = aedat3_header(&[(1, "DAVIS346B")]);
+    let mut a3 = Vec::new();
+    aedat3_polarity_packet(&mut a3, 1, 0, &e);
+    evt_head.shrink_to_fit();
+    vec![
+        (Dec::Aedat2, a2_head, a2),
+        (Dec::Aedat3, a3_head, a3),
+        (Dec::Evt2, evt_head.clone(), evt2_body(&e)),
+        (Dec::Evt3, evt_head, evt3_body(&e)),
+        (Dec::Dat, dat_head.clone(), dat[dat_head.len()..].to_vec()),
+        (Dec::Text, Vec::new(), text_seconds(&e)),
+        (Dec::Aedat4, aedat4.0, aedat4.1),
+    ]
+}
+
+fn stream_count(dec: Dec, header: &[u8], block: &[u8], blocks: usize) -> u64 {
+    let src = Repeat {
+        header: header.to_vec(),
+        block: block.to_vec(),
+        blocks,
+        pos: 0,
+    };
+    let mut r: Box<dyn EventReader> = match dec {
+        Dec::Aedat2 => Box::new(Aedat2Reader::new(src, Format::Aedat2, None).unwrap()),
+        Dec::Aedat3 => Box::new(Aedat3Reader::new(src, None).unwrap()),
+        Dec::Evt2 => Box::new(EvtReader::new(src, Format::Evt2, None).unwrap()),
+        Dec::Evt3 => Box::new(EvtReader::new(src, Format::Evt3, None).unwrap()),
+        Dec::Dat => Box::new(DatReader::new(src, None).unwrap()),
+        Dec::Text => Box::new(TextReader::new(src, Some(TimeUnit::S), None).unwrap()),
+        Dec::Aedat4 => Box::new(Aedat4Reader::new(src).unwrap()),
+        Dec::Aedat2Dhp19 => unreachable!(),
+    };
+    let mut b = Batch::default();
+    let mut n = 0;
+    while r.read_batch(&mut b).unwrap() {
+        n += b.len() as u64;
+    }
+    n
+}
+
+#[test]
+fn memory_is_constant_in_the_file_size() {
+    for (dec, header, block) in repeatable() {
+        let (small, small_peak) = peak_heap(|| stream_count(dec, &header, &block, 16));
+        let (large, large_peak) = peak_heap(|| stream_count(dec, &header, &block, 256));
+        assert_eq!(large, small * 16, "{dec:?}");
+        assert_eq!(large, 256 * 4096, "{dec:?}");
+        // The stream's bytes (in Repeat) count too; they are the same for both.
+        assert!(
+            large_peak <= small_peak + (64 << 10),
+            "{dec:?}: peak {large_peak} bytes for 256 blocks vs {small_peak} for 16"
+        );
+        assert!(large_peak < 4 << 20, "{dec:?}: peak {large_peak} bytes");
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Damage everywhere: truncation at every offset, and fuzzing.
+
+/// Decodes without a panic escaping; the error's offset lies within the input.
+fn decode_checked(dec: Dec, bytes: &[u8]) -> Result<Decoded, ReadError> {
+    let (r, peak) = peak_heap(|| {
+        std::panic::catch_unwind(|| decode(dec, bytes))
+            .unwrap_or_else(|_| panic!("{dec:?} panicked on {bytes:02x?}"))
+    });
+    assert!(
+        peak < 8 << 20,
+        "{dec:?}: peak {peak} bytes on {} input bytes",
+        bytes.len()
+    );
+    if let Err(ReadError::Corrupt { offset, .. } | ReadError::Truncated { offset, .. }) = &r {
+        assert!(
+            *offset <= bytes.len() as u64,
+            "{dec:?}: offset {offset} past the end"
+        );
+    }
+    r
+}
+
+#[test]
+fn truncation_at_every_offset_is_a_prefix_or_an_error() {
+    for (name, dec, _, bytes) in seeds() {
+        let full = decode(dec, &bytes).unwrap().events;
+        for cut in 0..bytes.len() {
+            if let Ok(d) = decode_checked(dec, &bytes[..cut]) {
+                assert_eq!(d.events[..], full[..d.events.len()], "{name} cut at {cut}");
+            }
+        }
+    }
+}
+
+fn mutated() -> impl Strategy<Value = (usize, Vec<u8>)> {
+    let n = seeds().len();
+    (
+        0..n,
+        proptest::collection::vec((any::<u16>(), any::<u8>(), 0u8..4), 1..8),
+    )
+        .prop_map(|(i, edits)| {
+            let mut bytes = seeds().swap_remove(i).3;
+            for (pos, val, kind) in edits {
+                let pos = usize::from(pos) % (bytes.len() + 1);
+                match kind {
+                    0 if pos < bytes.len() => bytes[pos] = val,
+                    1 if pos < bytes.len() => bytes[pos] ^= 1 << (val % 8),
+                    2 => bytes.insert(pos, val),
+                    _ => bytes.truncate(pos),
+                }
+            }
+            (i, bytes)
+        })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(768))]
+
+    /// Seed files with a few bytes overwritten, flipped, inserted or cut: every decoder
+    /// returns events or a typed error, in bounded memory.
+    #[test]
+    fn mutated_seeds_never_panic((i, bytes) in mutated()) {
+        let dec = seeds()[i].1;
+        let _ = decode_checked(dec, &bytes);
+    }
+
+    /// Arbitrary bytes after a valid header, through every decoder.
+    #[test]
+    fn random_bodies_never_panic(body in proptest::collection::vec(any::<u8>(), 0..1024), which in 0usize..8) {
+        let dec = DECODERS[which];
+        let header: Vec<u8> = match dec {
+            Dec::Aedat2 => aedat2_header(Some("DAVIS346B"), true),
+            Dec::Aedat2Dhp19 => aedat2_header(None, false),
+            Dec::Aedat3 => aedat3_header(&[(1, "DVXplorer")]),
+            Dec::Evt2 | Dec::Evt3 => raw_header(&["evt 3.0", "end"]),
+            Dec::Dat => dat_file(&[], 64, 64),
+            Dec::Text => b"t x y p\n".to_vec(),
+            Dec::Aedat4 => aedat4_header(&[CameraInfo { id: 0, width: Some(64), height: Some(64), name: None }]),
+        };
+        let bytes = [header, body].concat();
+        let _ = decode_checked(dec, &bytes);
+    }
+
+    /// Arbitrary bytes from the start.
+    #[test]
+    fn random_files_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..512), which in 0usize..8) {
+        let _ = decode_checked(DECODERS[which], &bytes);
+        let _ = Format::detect(&bytes);
+    }
+
+    /// Text made of digits, separators and line ends.
+    #[test]
+    fn random_text_never_panics(bytes in proptest::collection::vec(prop::sample::select(b"0123456789.,; -+eE\t\r\n#".to_vec()), 0..512)) {
+        let _ = decode_checked(Dec::Text, &bytes);
+    }
+}
