@@ -1,6 +1,7 @@
-//! Matrix-vector kernels, reference against every kernel this CPU runs.
+//! Matrix-vector and matrix-matrix kernels, reference against every kernel this CPU runs.
 //!
-//! Throughput is in MACs (criterion's "elements"): `K × out` per call.
+//! Throughput is in MACs (criterion's "elements"): `K × out` per call (`× P` points for
+//! matmat).
 //! `cargo bench -p evpose-core --bench kernels`; add `-- --quick` for a short run.
 
 use std::hint::black_box;
@@ -66,5 +67,33 @@ fn matvec_i16(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, matvec_i8, matvec_i16);
+fn matmat_i8(c: &mut Criterion) {
+    // conv5 (K = 512 → 1024, 512 KiB of weights) for blocks of P points, against the best
+    // matvec called once per point (`matvec×P/<isa>`: the weights read P times).
+    let (k, n) = (512, 1024);
+    let w = values(k * n, 7, |v| v as i8);
+    let bias = values(n, 9, |v| (v as i32) >> 8);
+    for p in [1, 4, 8, 16] {
+        let x = values(p * k, 8, |v| v as i8);
+        let mut out = vec![0; p * n];
+        let mut g = c.benchmark_group(format!("matmat_i8/conv5 K={k} out={n} P={p}"));
+        g.throughput(Throughput::Elements((k * n * p) as u64));
+        for kern in kernels_here() {
+            g.bench_function(kern.name(), |b| {
+                b.iter(|| kern.matmat_i8(black_box(&w), k, black_box(&x), &bias, &mut out, n))
+            });
+        }
+        let best = Kernels::detect();
+        g.bench_function(format!("matvec×P/{}", best.name()), |b| {
+            b.iter(|| {
+                for (xp, y) in black_box(&x).chunks_exact(k).zip(out.chunks_exact_mut(n)) {
+                    best.matvec_i8(black_box(&w), xp, &bias, y);
+                }
+            })
+        });
+        g.finish();
+    }
+}
+
+criterion_group!(benches, matvec_i8, matvec_i16, matmat_i8);
 criterion_main!(benches);

@@ -118,7 +118,20 @@ fn source_range(sources: u32, offs: &[usize]) -> core::ops::Range<usize> {
     offs[first - 1]..offs[last]
 }
 
-fn check_outputs(model: &Model<'_>, x: usize, y: usize) -> Result<(), InferError> {
+/// The checks both engines make before touching any buffer.
+fn check_args(
+    model: &Model<'_>,
+    dtype: DType,
+    points: &[[f32; FEATURES]],
+    (x, y): (usize, usize),
+    scratch: usize,
+) -> Result<(), InferError> {
+    if model.dtype() != dtype {
+        return Err(InferError::DType);
+    }
+    if points.is_empty() {
+        return Err(InferError::NoPoints);
+    }
     let (nx, ny) = (
         model.joints() * model.width(),
         model.joints() * model.height(),
@@ -129,13 +142,12 @@ fn check_outputs(model: &Model<'_>, x: usize, y: usize) -> Result<(), InferError
     if y != ny {
         return Err(InferError::Output { needed: ny, got: y });
     }
-    Ok(())
-}
-
-fn check_scratch(model: &Model<'_>, got: usize) -> Result<(), InferError> {
     let needed = scratch_words(model);
-    if got < needed {
-        return Err(InferError::Scratch { needed, got });
+    if scratch < needed {
+        return Err(InferError::Scratch {
+            needed,
+            got: scratch,
+        });
     }
     Ok(())
 }
@@ -173,14 +185,13 @@ pub fn run_f32_observed(
     out_y: &mut [f32],
     mut observe: impl FnMut(Stage, &[f32]),
 ) -> Result<(), InferError> {
-    if model.dtype() != DType::F32 {
-        return Err(InferError::DType);
-    }
-    if points.is_empty() {
-        return Err(InferError::NoPoints);
-    }
-    check_outputs(model, out_x.len(), out_y.len())?;
-    check_scratch(model, scratch.len())?;
+    check_args(
+        model,
+        DType::F32,
+        points,
+        (out_x.len(), out_y.len()),
+        scratch.len(),
+    )?;
     let (offs, acts_len) = layer_offsets(model);
     let pooled = model.pooled_width() as usize;
     let last = model.point_layer_count() - 1;
@@ -282,14 +293,13 @@ pub fn run_i8_with(
     out_x: &mut [i32],
     out_y: &mut [i32],
 ) -> Result<(), InferError> {
-    if model.dtype() != DType::I8 {
-        return Err(InferError::DType);
-    }
-    if points.is_empty() {
-        return Err(InferError::NoPoints);
-    }
-    check_outputs(model, out_x.len(), out_y.len())?;
-    check_scratch(model, scratch.len())?;
+    check_args(
+        model,
+        DType::I8,
+        points,
+        (out_x.len(), out_y.len()),
+        scratch.len(),
+    )?;
     let coding = InputCoding {
         shifts: model.input_shifts(),
     };
@@ -342,7 +352,7 @@ pub fn run_i8_with(
                     {
                         row.copy_from_slice(&act[src.clone()]);
                     }
-                    matmat_i8(k, w, k_in, &gathered[..n * k_in], bias, acc);
+                    k.matmat_i8(w, k_in, &gathered[..n * k_in], bias, acc, out_dim);
                 }
                 Weights::F32(_) => return Err(InferError::DType),
             }
@@ -399,14 +409,6 @@ pub fn run_i8_with(
         }
     }
     Ok(())
-}
-
-/// `out[p·O + o] = bias[o] + w[o] · x[p]` for each of the `x.len() / K` points.
-fn matmat_i8(k: &Kernels, w: &[i8], k_in: usize, x: &[i8], bias: &[i32], out: &mut [i32]) {
-    let o = bias.len();
-    for (x, out) in x.chunks_exact(k_in).zip(out.chunks_exact_mut(o)) {
-        k.matvec_i8(w, x, bias, out);
-    }
 }
 
 fn requantize_all(acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut [i8]) {

@@ -320,6 +320,307 @@ fn model_shapes() {
     check_i16(&w, &x, &[7; 64], 64);
 }
 
+// The blocked int8 matrix-matrix kernel.
+
+/// The expected `out` of a matmat call, from the reference matvec (`expected_i8`) per point,
+/// with the shape rules written out independently of `kernels::matmat_dims`: `O` rows as a
+/// matvec into a row of `stride`, then every point `p` of `x` whose row
+/// `out[p·stride..][..O]` fits.
+fn expected_mm(w: &[i8], k: usize, x: &[i8], bias: &[i32], out: &[i32], stride: usize) -> Vec<i32> {
+    let mut o = out.to_vec();
+    let rows = match w.len().checked_div(k) {
+        Some(r) => r.min(bias.len()).min(stride),
+        None => bias.len().min(stride),
+    };
+    if rows == 0 {
+        return o;
+    }
+    for p in 0.. {
+        if (p + 1) * k > x.len() || p * stride + rows > o.len() {
+            break;
+        }
+        let y = &mut o[p * stride..][..rows];
+        let want = expected_i8(w, &x[p * k..][..k], bias, y);
+        y.copy_from_slice(&want);
+    }
+    o
+}
+
+/// Checks every matmat kernel (and the raw reference, and `kernels::matmat_i8`) against
+/// [`expected_mm`], with a sentinel-filled `out` of `out_len`.
+fn check_mm(w: &[i8], k: usize, x: &[i8], bias: &[i32], out_len: usize, stride: usize) {
+    let out = vec![0x5A5A_5A5A; out_len];
+    let want = expected_mm(w, k, x, bias, &out, stride);
+    let run = |f: &dyn Fn(&mut [i32])| {
+        let mut o = out.clone();
+        f(&mut o);
+        o
+    };
+    let ctx = format!(
+        "K = {k}, x = {}, w = {}, bias = {}, out = {out_len}, stride = {stride}",
+        x.len(),
+        w.len(),
+        bias.len()
+    );
+    assert_eq!(
+        run(&|o| reference::matmat_i8(w, k, x, bias, o, stride)),
+        want,
+        "reference::matmat_i8, {ctx}"
+    );
+    for kern in with_reference_table() {
+        let got = run(&|o| kern.matmat_i8(w, k, x, bias, o, stride));
+        assert_eq!(got, want, "{}, {ctx}", kern.name());
+    }
+    assert_eq!(
+        run(&|o| kernels::matmat_i8(w, k, x, bias, o, stride)),
+        want,
+        "kernels::matmat_i8, {ctx}"
+    );
+    // The written rectangle is the one `matmat_dims` announces.
+    let (np, no) = kernels::matmat_dims(k, w.len(), x.len(), bias.len(), out_len, stride);
+    let mut probe = vec![i32::MIN; out_len];
+    let marker = vec![i32::MAX; bias.len()];
+    kernels::matmat_i8(
+        &vec![0; w.len()],
+        k,
+        &vec![0; x.len()],
+        &marker,
+        &mut probe,
+        stride,
+    );
+    let written: Vec<usize> = (0..out_len).filter(|&i| probe[i] == i32::MAX).collect();
+    let announced: Vec<usize> = (0..np)
+        .flat_map(|p| (0..no).map(move |o| p * stride + o))
+        .collect();
+    assert_eq!(written, announced, "matmat_dims, {ctx}");
+}
+
+/// `(w, k, x, bias, out_len, stride)`: `P` points in `0..=17`, `O` rows in `0..40`, `K` in `k`,
+/// `stride = O + 0..5` (below `O` one time in ten), `out_len = P·stride + 0..=3` or cut short
+/// by up to a row, `x` of `P·K` plus a partial point or minus a point, and `w`/`bias` lengths
+/// that disagree by up to 3 (as in [`shape`]) three times in ten.
+#[allow(clippy::type_complexity)]
+fn mm_shape(
+    k: std::ops::Range<usize>,
+) -> impl Strategy<Value = (Vec<i8>, usize, Vec<i8>, Vec<i32>, usize, usize)> {
+    (
+        k,
+        0usize..40,
+        0usize..=17,
+        (prop::bool::weighted(0.9), 0usize..5),
+        (prop::bool::weighted(0.7), 0usize..=3, 0usize..=100),
+        (prop::bool::weighted(0.8), 0usize..=100),
+        (prop::bool::weighted(0.7), -3i64..=3, -3i64..=3),
+    )
+        .prop_flat_map(
+            |(k, n, p, (wide, ds), (pad, dpad, cut), (whole_x, dx), (exact, dw, db))| {
+                let stride = if wide {
+                    n + ds
+                } else {
+                    n.saturating_sub(ds + 1)
+                };
+                let full = p * stride;
+                let out_len = if pad {
+                    full + dpad
+                } else {
+                    full.saturating_sub(cut % (stride + 1))
+                };
+                let x_len = if whole_x {
+                    p * k
+                } else if dx % 2 == 0 {
+                    p * k + dx % k.max(1)
+                } else {
+                    (p * k).saturating_sub(1 + dx % k.max(1))
+                };
+                let (dw, db) = if exact { (0, 0) } else { (dw, db) };
+                let wl = ((n * k) as i64 + dw).max(0) as usize;
+                let bl = (n as i64 + db).max(0) as usize;
+                (
+                    prop::collection::vec(any_i8(), wl),
+                    Just(k),
+                    prop::collection::vec(any_i8(), x_len),
+                    prop::collection::vec(-(1i32 << 30)..(1 << 30), bl),
+                    Just(out_len),
+                    Just(stride),
+                )
+            },
+        )
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(512))]
+
+    #[test]
+    fn i8_matmat_kernels_match_reference((w, k, x, b, n, s) in mm_shape(0..600)) {
+        check_mm(&w, k, &x, &b, n, s);
+    }
+
+    #[test]
+    fn i8_matmat_kernels_match_reference_small_k((w, k, x, b, n, s) in mm_shape(0..80)) {
+        // Every tail length of the 16-, 32- and 64-lane kernels, and K below one chunk.
+        check_mm(&w, k, &x, &b, n, s);
+    }
+}
+
+/// All 256 × 256 int8 products, as `K` equal terms, through the matmat kernels: `w` holds one
+/// row per weight value, the points one value each, 17 points per call (a full group of 16 and
+/// a 1-point remainder; the last call 1 point).
+fn sweep_products_mm(k: usize, stride: usize) {
+    let wv: Vec<i8> = (i8::MIN..=i8::MAX)
+        .flat_map(|a| std::iter::repeat_n(a, k))
+        .collect();
+    let bias: Vec<i32> = (0..256).map(|i| i * 7 - 900).collect();
+    let xs: Vec<i8> = (i8::MIN..=i8::MAX).collect();
+    for vals in xs.chunks(17) {
+        let x: Vec<i8> = vals
+            .iter()
+            .flat_map(|&v| std::iter::repeat_n(v, k))
+            .collect();
+        let out_len = vals.len() * stride;
+        let mut want = vec![0x5A5A_5A5A; out_len];
+        for (p, &xv) in vals.iter().enumerate() {
+            for (o, a) in (i8::MIN..=i8::MAX).enumerate() {
+                want[p * stride + o] = bias[o] + k as i32 * i32::from(a) * i32::from(xv);
+            }
+        }
+        assert_eq!(
+            expected_mm(&wv, k, &x, &bias, &vec![0x5A5A_5A5A; out_len], stride),
+            want,
+            "reference, x = {vals:?}"
+        );
+        check_mm(&wv, k, &x, &bias, out_len, stride);
+    }
+}
+
+#[test]
+fn i8_matmat_all_products() {
+    for k in [1, 16, 31, 32, 33, 64, 67, 128, 131] {
+        sweep_products_mm(k, 256);
+    }
+    sweep_products_mm(67, 261);
+}
+
+#[test]
+fn i8_matmat_extremes() {
+    // Sums at the edge of the i32 range: `bias` near ±2^31 and K · 128 · 128 large. The
+    // reference's `+` would overflow only past what the shapes here reach (K ≤ 2^17 / 2).
+    for (wv, xv) in [
+        (-128i8, -128i8),
+        (-128, 127),
+        (127, -128),
+        (127, 127),
+        (-128, 0),
+    ] {
+        for k in [1, 63, 64, 65, 127, 128, 129, 1000] {
+            let big = 1i32 << 30;
+            let bias = [
+                0,
+                1,
+                -1,
+                big,
+                -big,
+                i32::MAX - 16384 * k as i32,
+                i32::MIN + 16384 * k as i32,
+            ];
+            let bias: Vec<i32> = bias.iter().cycle().take(9).copied().collect();
+            for p in [1, 4, 5, 16, 17] {
+                let w = vec![wv; 9 * k];
+                let x = vec![xv; p * k];
+                check_mm(&w, k, &x, &bias, p * 11, 11);
+            }
+        }
+    }
+}
+
+#[test]
+fn i8_matmat_k_zero_p_zero_and_degenerate_strides() {
+    let bias = [3, -4, i32::MAX - 3, i32::MIN + 3, 5]; // (K = 3 below: no overflow)
+    for out_len in 0..14 {
+        for stride in 0..7 {
+            for w_len in [0, 5] {
+                for x_len in [0, 3] {
+                    check_mm(&vec![1; w_len], 0, &vec![1; x_len], &bias, out_len, stride);
+                    // K = 3: x holds 0 or 1 points.
+                    check_mm(
+                        &vec![1; w_len * 3],
+                        3,
+                        &vec![1; x_len],
+                        &bias,
+                        out_len,
+                        stride,
+                    );
+                }
+            }
+        }
+    }
+    // K = 0: as many points as rows of `out` fit, each `bias`.
+    let mut out = [9; 11];
+    kernels::matmat_i8(&[], 0, &[], &bias[..2], &mut out, 3);
+    assert_eq!(out, [3, -4, 9, 3, -4, 9, 3, -4, 9, 3, -4]);
+    assert_eq!(kernels::matmat_dims(0, 0, 0, 2, 11, 3), (4, 2));
+    // O limited by the stride, P by x, then by out.
+    assert_eq!(kernels::matmat_dims(2, 10, 6, 5, 100, 4), (3, 4));
+    assert_eq!(kernels::matmat_dims(2, 10, 6, 5, 9, 4), (2, 4));
+    assert_eq!(kernels::matmat_dims(2, 10, 6, 5, 7, 4), (1, 4));
+    assert_eq!(kernels::matmat_dims(2, 10, 6, 5, 3, 4), (0, 0));
+    assert_eq!(kernels::matmat_dims(2, 10, 6, 5, 100, 0), (0, 0));
+}
+
+#[test]
+fn i8_matmat_model_shapes() {
+    // The PointNet point layers (K → O) at the block sizes the engine uses, into rows wider
+    // than O; and P = 1 and 33 (two groups and a remainder) on conv5 and fc1.
+    let mut s = 0x9E37_79B9_7F4A_7C15u64;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        s
+    };
+    for (k, n, points) in [
+        (64, 64, &[1, 2, 3, 4, 7, 8, 15, 16][..]),
+        (64, 128, &[5, 16]),
+        (128, 256, &[16]),
+        (512, 1024, &[1, 4, 8, 16, 17, 33]),
+        (2048, 1024, &[1, 3]),
+        (2048, 64, &[16]),
+        (128, 346, &[6, 16]),
+    ] {
+        let w: Vec<i8> = (0..k * n).map(|_| next() as i8).collect();
+        let b: Vec<i32> = (0..n).map(|_| (next() as i32) >> 8).collect();
+        for &p in points {
+            let x: Vec<i8> = (0..p * k).map(|_| next() as i8).collect();
+            check_mm(&w, k, &x, &b, p * (n + 3), n + 3);
+            check_mm(&w, k, &x, &b, p * n, n);
+        }
+    }
+}
+
+#[test]
+fn i8_matmat_equals_matvec_per_point() {
+    // The same table's matvec, point by point (what the engine did before blocking).
+    let mut s = 0x1234_5678_9ABC_DEF1u64;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        s
+    };
+    let (k, n, p) = (200, 37, 13);
+    let w: Vec<i8> = (0..k * n).map(|_| next() as i8).collect();
+    let x: Vec<i8> = (0..k * p).map(|_| next() as i8).collect();
+    let b: Vec<i32> = (0..n).map(|_| (next() as i32) >> 4).collect();
+    for kern in with_reference_table() {
+        let mut mm = vec![0; p * n];
+        kern.matmat_i8(&w, k, &x, &b, &mut mm, n);
+        let mut mv = vec![0; p * n];
+        for (xp, y) in x.chunks_exact(k).zip(mv.chunks_exact_mut(n)) {
+            kern.matvec_i8(&w, xp, &b, y);
+        }
+        assert_eq!(mm, mv, "{}", kern.name());
+    }
+}
+
 #[cfg(target_arch = "x86_64")]
 #[test]
 fn cpuid_detection_matches_std() {

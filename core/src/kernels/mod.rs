@@ -1,4 +1,6 @@
-//! Matrix-vector kernels of the engines: `out[o] = bias[o] + Σ_k w[o·K + k] · x[k]`.
+//! Matrix-vector kernels of the engines: `out[o] = bias[o] + Σ_k w[o·K + k] · x[k]`, and the
+//! blocked int8 matrix-matrix kernel `out[p·S + o] = bias[o] + Σ_k w[o·K + k] · x[p·K + k]`
+//! (several points per pass over the weights, [`Kernels::matmat_i8`]).
 //!
 //! [`reference`](mod@reference) is the specification: plain scalar loops. Optimized kernels must
 //! give the same integers (`==`, no tolerance) and are tested against it
@@ -8,15 +10,15 @@
 //!
 //! As in tract-linalg, the portable table always exists and native kernels override it:
 //!
-//! - [`Kernels`] is a table of one int8 and one i16 kernel for one [`Isa`], with
-//!   [`Kernels::reference`] (the portable fallback), [`Kernels::best`] (chosen at compile time
-//!   from `cfg(target_feature)`) and [`Kernels::detect`] (chosen at run time: `cpuid` on x86_64,
-//!   no `std` needed). A table can only be built for kernels the CPU runs, so calling through it
-//!   is safe.
-//! - The free functions [`matvec_i8`] and [`matvec_i16`] call `Kernels::best()`: a direct call,
-//!   no indirection. A default `x86_64` build gets the reference kernels; a build with
-//!   `RUSTFLAGS="-C target-cpu=native"` (or `-C target-feature=+avx2,...`) gets the best
-//!   kernels that flag promises. Engines that want run-time selection take a `&Kernels`.
+//! - [`Kernels`] is a table of one int8 and one i16 matvec kernel and one int8 matmat kernel
+//!   for one [`Isa`], with [`Kernels::reference`] (the portable fallback), [`Kernels::best`]
+//!   (chosen at compile time from `cfg(target_feature)`) and [`Kernels::detect`] (chosen at run
+//!   time: `cpuid` on x86_64, no `std` needed). A table can only be built for kernels the CPU
+//!   runs, so calling through it is safe.
+//! - The free functions [`matvec_i8`], [`matvec_i16`] and [`matmat_i8`] call `Kernels::best()`:
+//!   a direct call, no indirection. A default `x86_64` build gets the reference kernels; a
+//!   build with `RUSTFLAGS="-C target-cpu=native"` (or `-C target-feature=+avx2,...`) gets the
+//!   best kernels that flag promises. Engines that want run-time selection take a `&Kernels`.
 //! - [`Isa::ALL`] lists every kernel set, each with [`Isa::is_supported_here`] and
 //!   [`Isa::kernels`], so tests and benchmarks run every kernel this CPU has.
 //!
@@ -41,6 +43,12 @@
 //! dot products are exact modulo 2^32, which is what the reference's `+` gives in a release
 //! build (a debug build panics on overflow instead). `K = 0` gives `out[o] = bias[o]`
 //! (the reference itself panics there: `chunks_exact(0)`).
+//!
+//! [`matmat_i8`] is [`reference::matmat_i8`]: the reference matvec once per point, on the
+//! `points × rows` rectangle of [`matmat_dims`] (see [`MatmatI8`]). The x86 kernels compute it
+//! four output rows by up to four points at a time, so each weight vector loaded is used for
+//! several points and a layer's weights are streamed from memory once per 16 points instead of
+//! once per point.
 
 pub mod reference;
 
@@ -55,6 +63,20 @@ pub type MatvecI8 = fn(&[i8], &[i8], &[i32], &mut [i32]);
 /// The i16 kernel signature: `(w, x, bias, out)`.
 pub type MatvecI16 = fn(&[i16], &[i16], &[i32], &mut [i32]);
 
+/// The blocked int8 kernel signature: `(w, k, x, bias, out, out_stride)`, computing
+///
+/// `out[p·S + o] = bias[o] + Σ_{j<K} w[o·K + j] · x[p·K + j]` for `p < P`, `o < O`
+///
+/// with `K = k`, `S = out_stride` and `(P, O) =` [`matmat_dims`]: `O` as many rows as
+/// [`rows`] gives for a matvec whose `out` is one row of `S` (so `O ≤ S`: rows never overlap),
+/// `P` as many points as `x` holds (`x.len() / K`, unbounded for `K = 0`) whose whole row of `O`
+/// outputs fits in `out`. Exactly those `P · O` elements of `out` are written, each to the value
+/// the reference matvec gives for that point (`bias` when `K = 0`, wrapping modulo 2^32 like
+/// the matvec kernels); every other element, the gaps between rows included, is untouched.
+/// Nothing panics: `K = 0`, `P = 0`, `O = 0`, `S = 0` and lengths that disagree all follow from
+/// the rule above.
+pub type MatmatI8 = fn(&[i8], usize, &[i8], &[i32], &mut [i32], usize);
+
 /// The rows every kernel computes for `K = x.len()`: those the reference's
 /// `out.iter_mut().zip(w.chunks_exact(K)).zip(bias)` visits (for `K = 0`, `min(out, bias)`).
 #[inline]
@@ -68,6 +90,34 @@ pub const fn rows(k: usize, w_len: usize, bias_len: usize, out_len: usize) -> us
         Some(r) if r < n => r,
         _ => n,
     }
+}
+
+/// `(P, O)`, the points and rows a [`MatmatI8`] kernel computes: it writes
+/// `out[p·out_stride + o]` for `p < P`, `o < O` and nothing else.
+///
+/// `O = rows(k, w_len, bias_len, out_stride)`; `P` is the number of points in `x`
+/// (`x_len / k`, any number for `k = 0`) limited to those whose row ends inside `out`
+/// (`p·out_stride + O ≤ out_len`). `(0, 0)` when either is 0: nothing is written.
+#[inline]
+pub const fn matmat_dims(
+    k: usize,
+    w_len: usize,
+    x_len: usize,
+    bias_len: usize,
+    out_len: usize,
+    out_stride: usize,
+) -> (usize, usize) {
+    let o = rows(k, w_len, bias_len, out_stride);
+    if o == 0 || out_len < o {
+        return (0, 0);
+    }
+    // o ≥ 1 implies out_stride ≥ 1.
+    let fit = (out_len - o) / out_stride + 1;
+    let p = match x_len.checked_div(k) {
+        Some(p) if p < fit => p,
+        _ => fit,
+    };
+    (p, if p == 0 { 0 } else { o })
 }
 
 /// A family of kernels, named after the instructions it needs.
@@ -126,8 +176,8 @@ impl Isa {
     }
 }
 
-/// One int8 and one i16 matrix-vector kernel, every one bit-exact with
-/// [`reference`](mod@reference).
+/// One int8 and one i16 matrix-vector kernel and one int8 matrix-matrix kernel, every one
+/// bit-exact with [`reference`](mod@reference).
 ///
 /// Only kernels the CPU runs can be put in a table (the fields are private), so the calls are
 /// safe. Pick once, keep the table:
@@ -140,6 +190,12 @@ impl Isa {
 /// let mut out = [0; 2];
 /// k.matvec_i8(&w, &x, &bias, &mut out);
 /// assert_eq!(out, [10 + 1 - 2 + 6, 20 + 4 - 5 + 12]);
+///
+/// // Two points (rows of x, K = 3) through the same weights, output rows 4 apart.
+/// let x2 = [1i8, -1, 2, 0, 0, 1];
+/// let mut out2 = [-1; 6];
+/// k.matmat_i8(&w, 3, &x2, &bias, &mut out2, 4);
+/// assert_eq!(out2, [10 + 1 - 2 + 6, 20 + 4 - 5 + 12, -1, -1, 10 + 3, 20 + 6]);
 /// println!("{}", k.name());
 /// ```
 #[derive(Clone, Copy, Debug)]
@@ -147,6 +203,7 @@ pub struct Kernels {
     isa: Isa,
     i8: MatvecI8,
     i16: MatvecI16,
+    i8mm: MatmatI8,
 }
 
 impl Kernels {
@@ -157,6 +214,7 @@ impl Kernels {
             isa: Isa::Reference,
             i8: reference_i8,
             i16: reference_i16,
+            i8mm: reference::matmat_i8,
         }
     }
 
@@ -226,6 +284,22 @@ impl Kernels {
     pub fn matvec_i16(&self, w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]) {
         (self.i16)(w, x, bias, out)
     }
+
+    /// [`reference::matmat_i8`], bit-exact, with this table's kernel: the `x.len() / k` points
+    /// (rows of `x`, `k` long) through the weights `w` (rows of `k`), point `p`'s outputs at
+    /// `out[p·out_stride..][..O]`; see [`MatmatI8`] and [`matmat_dims`] for what is written.
+    #[inline]
+    pub fn matmat_i8(
+        &self,
+        w: &[i8],
+        k: usize,
+        x: &[i8],
+        bias: &[i32],
+        out: &mut [i32],
+        out_stride: usize,
+    ) {
+        (self.i8mm)(w, k, x, bias, out, out_stride)
+    }
 }
 
 /// [`reference::matvec_i8`], with `K = 0` defined as `out[o] = bias[o]` (the reference panics).
@@ -248,7 +322,7 @@ fn reference_i16(w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]) {
     }
 }
 
-/// The kernels [`matvec_i8`] and [`matvec_i16`] use.
+/// The kernels [`matvec_i8`], [`matvec_i16`] and [`matmat_i8`] use.
 const BEST: Kernels = Kernels::best();
 
 /// [`reference::matvec_i8`], bit-exact, with the compile-time best kernel ([`Kernels::best`]).
@@ -261,4 +335,10 @@ pub fn matvec_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
 #[inline]
 pub fn matvec_i16(w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]) {
     BEST.matvec_i16(w, x, bias, out)
+}
+
+/// [`reference::matmat_i8`], bit-exact, with the compile-time best kernel ([`Kernels::best`]).
+#[inline]
+pub fn matmat_i8(w: &[i8], k: usize, x: &[i8], bias: &[i32], out: &mut [i32], out_stride: usize) {
+    BEST.matmat_i8(w, k, x, bias, out, out_stride)
 }
