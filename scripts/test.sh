@@ -17,5 +17,9 @@ if ! command -v qemu-system-arm >/dev/null 2>&1; then
 fi
 
 cargo fmt --all -- --check
+# The firmware is its own workspace, built for thumbv7em-none-eabihf only: format and lint it
+# too. Its build and its run under QEMU are the test `firmware_qemu`.
+cargo fmt --manifest-path firmware/Cargo.toml -- --check
+(cd firmware && cargo clippy --release -- -D warnings)
 cargo clippy --workspace --all-targets --locked -- -D warnings
 cargo test --workspace --locked

@@ -345,14 +345,19 @@ pub fn run_i8_with(
                     // Gather each point's sources (a contiguous run of its activations) into
                     // rows of K, then one pass over the weights for the whole block.
                     let src = source_range(l.desc.sources, &offs);
-                    for (row, act) in gathered
-                        .chunks_exact_mut(k_in)
-                        .zip(acts.chunks_exact(acts_len))
-                        .take(n)
-                    {
-                        row.copy_from_slice(&act[src.clone()]);
+                    if n == 1 {
+                        // One point (an MCU's block): read the sources in place, no copy.
+                        k.matvec_i8(w, &acts[src], bias, acc);
+                    } else {
+                        for (row, act) in gathered
+                            .chunks_exact_mut(k_in)
+                            .zip(acts.chunks_exact(acts_len))
+                            .take(n)
+                        {
+                            row.copy_from_slice(&act[src.clone()]);
+                        }
+                        k.matmat_i8(w, k_in, &gathered[..n * k_in], bias, acc, out_dim);
                     }
-                    k.matmat_i8(w, k_in, &gathered[..n * k_in], bias, acc, out_dim);
                 }
                 Weights::F32(_) => return Err(InferError::DType),
             }

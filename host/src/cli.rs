@@ -10,6 +10,7 @@ use serde::Serialize;
 
 use crate::io::{self, Batch, CameraInfo, Format};
 
+pub mod budget;
 pub mod inference;
 use crate::npy;
 use crate::pipeline::{self, RasterOptions, VecStorage};
@@ -40,6 +41,8 @@ pub enum Command {
     Quantize(inference::QuantizeArgs),
     /// Check that the core's int8 engine and tract on the quantized ONNX agree exactly.
     Parity(inference::ParityArgs),
+    /// Per-layer MACs and bytes of a model, and a firmware image's flash and RAM.
+    Budget(budget::BudgetArgs),
     /// Measure throughput.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -171,6 +174,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Infer(a) => inference::infer(&a),
         Command::Quantize(a) => inference::quantize(&a),
         Command::Parity(a) => inference::parity(&a),
+        Command::Budget(a) => budget::budget(&a),
     }
 }
 

@@ -14,7 +14,7 @@ fn head_fixture() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/aedat4/davis346-street-head.aedat4")
 }
 
-/// The whole recording, present only beside a full checkout (`/work/shared`).
+/// The whole recording, present only where `../shared` sits beside the checkout.
 fn full_recording() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/recordings/davis346-street.aedat4")
 }

@@ -1,0 +1,571 @@
+//! The firmware (`firmware/`) under QEMU against the core on the host, window for window.
+//!
+//! `firmware_matches_the_host_core_under_qemu` builds the `thumbv7em-none-eabihf` image, runs it
+//! on QEMU's `mps2-an500` (Cortex-M7) with semihosting and `-icount shift=0`, decodes its defmt
+//! frames with `defmt-decoder` and the ELF's defmt table (what `defmt-print` does), runs the same
+//! event stream through `evpose-core` on the host with the same storage, seed and model blob,
+//! and asserts identical windows, point clouds, network inputs, head accumulators (CRC-32) and
+//! joints. It fails, never skips, when QEMU or the target is missing: `scripts/test.sh` installs
+//! both. It also checks that the image has no heap, and prints the firmware's figures
+//! (instructions per stage, per point-layer MAC, flash, RAM, stack); run with `--nocapture`.
+//!
+//! This file also holds the reference codec of the firmware's `EVS1` event stream (format in
+//! `firmware/src/input.rs`): the encoder that made `firmware/assets/street-00-02.evs` and an
+//! independent decoder, checked against the bundled `.npy` windows it was cut from.
+
+use std::io::Read as _;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use evpose_core::model::{CRC, FEATURES};
+use evpose_core::raster::{RasterParts, RasterStorage, Window};
+use evpose_core::sample::{rng_from_seed, sample_window};
+use evpose_core::{
+    decode, run_i8, scratch_words, Davis346Storage, Event, Joint2d, Model, Pushed, RasterConfig,
+    Rasterizer,
+};
+use evpose_host::cli::budget::image_budget;
+use evpose_host::model::AlignedBlob;
+use evpose_tests::fixtures;
+
+/// Network input points per window and sampler seed: the firmware's `POINTS` and `SEED`.
+const POINTS: usize = 2048;
+const SEED: u64 = 0;
+/// The windows in the event asset: the first 22,500 events of the DAVIS346 street recording,
+/// which are the bundled windows street-00, -01 and -02.
+const WINDOWS: [&str; 3] = ["street-00", "street-01", "street-02"];
+/// Longest QEMU may run (it takes a few seconds).
+const QEMU_TIMEOUT: Duration = Duration::from_secs(300);
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn firmware_dir() -> PathBuf {
+    repo().join("firmware")
+}
+
+fn event_asset() -> PathBuf {
+    firmware_dir().join("assets/street-00-02.evs")
+}
+
+fn model_asset() -> PathBuf {
+    firmware_dir().join("../assets/pointnet-small.evq")
+}
+
+/// The reference codec of the `EVS1` stream (see `firmware/src/input.rs`).
+mod evs {
+    use evpose_core::Event;
+
+    const MAGIC: &[u8; 4] = b"EVS1";
+    const HEADER_LEN: usize = 24;
+    const TIME: u32 = 1 << 31;
+    /// Largest time step an EVENT word holds, exclusive.
+    const DT_LIMIT: i64 = 1 << 9;
+    /// Range of a TIME word's signed 31-bit step.
+    const STEP_MIN: i64 = -(1 << 30);
+    const STEP_MAX: i64 = (1 << 30) - 1;
+
+    /// Header fields.
+    #[derive(Debug, PartialEq, Eq)]
+    pub struct Header {
+        pub width: u16,
+        pub height: u16,
+        pub t0: i64,
+    }
+
+    /// Encodes events; `t0` is the first event's time (0 for an empty stream).
+    pub fn encode(events: &[Event], width: u16, height: u16) -> Vec<u8> {
+        let t0 = events.first().map_or(0, |e| e.t);
+        let mut out = Vec::with_capacity(HEADER_LEN + 4 * events.len());
+        out.extend_from_slice(MAGIC);
+        out.extend_from_slice(&width.to_le_bytes());
+        out.extend_from_slice(&height.to_le_bytes());
+        out.extend_from_slice(&(events.len() as u32).to_le_bytes());
+        out.extend_from_slice(&0u32.to_le_bytes());
+        out.extend_from_slice(&t0.to_le_bytes());
+        let mut time = t0;
+        for e in events {
+            assert!(e.x < 2048 && e.y < 1024, "pixel {e:?} outside 2048 x 1024");
+            let mut step = e.t - time;
+            while !(0..DT_LIMIT).contains(&step) {
+                let s = step.clamp(STEP_MIN, STEP_MAX);
+                out.extend_from_slice(&(TIME | (s as i32 as u32 & !TIME)).to_le_bytes());
+                step -= s;
+            }
+            let word =
+                u32::from(e.x) | u32::from(e.y) << 11 | u32::from(e.on) << 21 | (step as u32) << 22;
+            out.extend_from_slice(&word.to_le_bytes());
+            time = e.t;
+        }
+        out
+    }
+
+    /// Decodes a whole stream.
+    pub fn decode(bytes: &[u8]) -> Result<(Header, Vec<Event>), String> {
+        if bytes.len() < HEADER_LEN || &bytes[..4] != MAGIC {
+            return Err("not an EVS1 stream".into());
+        }
+        let u16_at = |o: usize| u16::from_le_bytes(bytes[o..o + 2].try_into().unwrap());
+        let count = u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize;
+        let header = Header {
+            width: u16_at(4),
+            height: u16_at(6),
+            t0: i64::from_le_bytes(bytes[16..24].try_into().unwrap()),
+        };
+        let mut time = header.t0;
+        let mut events = Vec::with_capacity(count);
+        let mut words = bytes[HEADER_LEN..].chunks_exact(4);
+        while events.len() < count {
+            let w = u32::from_le_bytes(
+                words
+                    .next()
+                    .ok_or_else(|| format!("stream ends after {} events", events.len()))?
+                    .try_into()
+                    .unwrap(),
+            );
+            if w & TIME != 0 {
+                // Bits 0..=30, sign-extended from bit 30.
+                let step = i64::from(w & !TIME) - if w & 1 << 30 != 0 { 1 << 31 } else { 0 };
+                time += step;
+                continue;
+            }
+            time += i64::from(w >> 22 & 0x1FF);
+            events.push(Event::new(
+                (w & 0x7FF) as u16,
+                (w >> 11 & 0x3FF) as u16,
+                time,
+                w >> 21 & 1 == 1,
+            ));
+        }
+        if words.next().is_some() || !words.remainder().is_empty() {
+            return Err("bytes after the last event".into());
+        }
+        Ok((header, events))
+    }
+}
+
+/// Events of a bundled `.npy` window ((N, 4) float64 `[x, y, t_us, p]`).
+fn npy_events(path: &Path) -> Vec<Event> {
+    let (shape, v) = evpose_host::npy::read_f64(path).unwrap();
+    assert_eq!(shape.len(), 2, "{}", path.display());
+    assert_eq!(shape[1], 4, "{}", path.display());
+    v.chunks_exact(4)
+        .map(|r| Event::new(r[0] as u16, r[1] as u16, r[2] as i64, r[3] > 0.5))
+        .collect()
+}
+
+fn fixture_events() -> Vec<Event> {
+    WINDOWS
+        .iter()
+        .flat_map(|w| npy_events(&fixtures().join(format!("{w}.events.npy"))))
+        .collect()
+}
+
+#[test]
+fn event_asset_is_the_recording_windows() {
+    let bytes = std::fs::read(event_asset()).unwrap();
+    let (header, decoded) = evs::decode(&bytes).unwrap();
+    let want = fixture_events();
+    assert_eq!(
+        header,
+        evs::Header {
+            width: 346,
+            height: 260,
+            t0: want[0].t
+        }
+    );
+    assert_eq!(decoded.len(), want.len());
+    for (i, (d, w)) in decoded.iter().zip(&want).enumerate() {
+        assert_eq!(d, w, "event {i}");
+    }
+    // The committed asset is exactly what the encoder makes: 4 bytes per event.
+    assert_eq!(evs::encode(&want, 346, 260), bytes);
+    assert_eq!(bytes.len(), 24 + 4 * want.len());
+}
+
+#[test]
+fn event_codec_round_trips_odd_streams() {
+    let events = [
+        Event::new(0, 0, -5, false),
+        Event::new(2047, 1023, -5, true),          // same time
+        Event::new(3, 4, 506, true),               // step of 511: still one word
+        Event::new(3, 4, 1018, false),             // step of 512: a TIME word
+        Event::new(5, 6, 1000, true),              // backwards
+        Event::new(7, 8, 1000 + (1 << 31), false), // beyond one TIME word
+        Event::new(9, 10, -(1 << 40), true),       // far backwards
+        Event::new(345, 259, 1_589_163_147_368_868, true), // an absolute DV timestamp
+    ];
+    let bytes = evs::encode(&events, 2048, 1024);
+    let (header, decoded) = evs::decode(&bytes).unwrap();
+    assert_eq!(header.t0, -5);
+    assert_eq!(decoded, events);
+    assert!(evs::decode(&bytes[..bytes.len() - 1]).is_err());
+    assert_eq!(evs::decode(&evs::encode(&[], 1, 1)).unwrap().1, vec![]);
+}
+
+/// Rewrites `firmware/assets/street-00-02.evs` from a converted recording:
+/// `EVPOSE_EVENTS_NPY=events.npy cargo test --release --test firmware_qemu -- --ignored
+/// regenerate_event_asset` (what `scripts/make-firmware-assets.sh` runs).
+#[test]
+#[ignore = "regenerates a committed asset; run by scripts/make-firmware-assets.sh"]
+fn regenerate_event_asset() {
+    let npy = std::env::var_os("EVPOSE_EVENTS_NPY")
+        .expect("set EVPOSE_EVENTS_NPY to an (N, 4) .npy of the DAVIS346 street recording");
+    let mut events = npy_events(Path::new(&npy));
+    events.truncate(WINDOWS.len() * 7_500);
+    assert_eq!(events.len(), WINDOWS.len() * 7_500, "recording too short");
+    std::fs::write(event_asset(), evs::encode(&events, 346, 260)).unwrap();
+}
+
+/// Fails with what to do when the tools are missing (CI installs both with scripts/test.sh).
+fn require_tools() {
+    let qemu = Command::new("qemu-system-arm").arg("--version").output();
+    assert!(
+        qemu.as_ref().is_ok_and(|o| o.status.success()),
+        "qemu-system-arm is missing ({}); install it: `apt-get install qemu-system-arm` \
+         (scripts/test.sh does)",
+        qemu.err().map_or("it failed".into(), |e| e.to_string())
+    );
+    let libdir = Command::new("rustc")
+        .args([
+            "--print",
+            "target-libdir",
+            "--target",
+            "thumbv7em-none-eabihf",
+        ])
+        .output()
+        .expect("rustc runs");
+    let libdir = PathBuf::from(String::from_utf8_lossy(&libdir.stdout).trim());
+    let has_core = std::fs::read_dir(&libdir).is_ok_and(|d| {
+        d.flatten()
+            .any(|f| f.file_name().to_string_lossy().starts_with("libcore-"))
+    });
+    assert!(
+        has_core,
+        "the thumbv7em-none-eabihf target is not installed (no libcore in {}); install it: \
+         `rustup target add thumbv7em-none-eabihf` (scripts/test.sh does)",
+        libdir.display()
+    );
+}
+
+/// Builds the release image (its own workspace and target folder); returns the ELF's path.
+fn build_firmware() -> PathBuf {
+    let dir = firmware_dir();
+    let target = dir.join("target");
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let mut cmd = Command::new(cargo);
+    // The firmware's .cargo/config.toml (target, linker scripts, CPU) applies from its folder;
+    // flags meant for the host build must not leak into it.
+    cmd.args(["build", "--release"])
+        .current_dir(&dir)
+        .env("CARGO_TARGET_DIR", &target);
+    for var in [
+        "RUSTFLAGS",
+        "CARGO_ENCODED_RUSTFLAGS",
+        "CARGO_BUILD_RUSTFLAGS",
+        "CARGO_BUILD_TARGET",
+        "RUSTDOCFLAGS",
+    ] {
+        cmd.env_remove(var);
+    }
+    let out = cmd.output().expect("cargo runs");
+    assert!(
+        out.status.success(),
+        "building the firmware failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    target.join("thumbv7em-none-eabihf/release/evpose-firmware")
+}
+
+/// Runs the image under QEMU; returns what it wrote to semihosting stdout (defmt frames).
+fn run_qemu(elf: &Path) -> Vec<u8> {
+    let mut child = Command::new("qemu-system-arm")
+        .args([
+            "-machine",
+            "mps2-an500",
+            "-cpu",
+            "cortex-m7",
+            "-nographic",
+            "-monitor",
+            "none",
+            "-serial",
+            "none",
+            "-semihosting-config",
+            "enable=on,target=native",
+            "-icount",
+            "shift=0",
+            "-kernel",
+        ])
+        .arg(elf)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("qemu-system-arm starts");
+    let mut stdout = child.stdout.take().expect("piped");
+    let reader = std::thread::spawn(move || {
+        let mut buf = Vec::new();
+        stdout.read_to_end(&mut buf).map(|_| buf)
+    });
+    let start = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().expect("waits on QEMU") {
+            break Some(s);
+        }
+        if start.elapsed() > QEMU_TIMEOUT {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let bytes = reader.join().expect("reader").expect("QEMU's stdout");
+    let mut stderr = String::new();
+    if let Some(mut e) = child.stderr.take() {
+        let _ = e.read_to_string(&mut stderr);
+    }
+    let lines = defmt_lines(elf, &bytes).join("\n");
+    match status {
+        None => panic!("QEMU ran longer than {QEMU_TIMEOUT:?}; output:\n{lines}\n{stderr}"),
+        Some(s) if !s.success() => panic!("the firmware failed ({s}):\n{lines}\n{stderr}"),
+        Some(_) => bytes,
+    }
+}
+
+/// Decodes defmt frames with the ELF's table into text lines (levels as `ERROR `… prefixes).
+fn defmt_lines(elf: &Path, bytes: &[u8]) -> Vec<String> {
+    let elf = std::fs::read(elf).unwrap();
+    let table = defmt_decoder::Table::parse(&elf)
+        .expect("the ELF's defmt table parses")
+        .expect("the ELF has a defmt table");
+    let mut stream = table.new_stream_decoder();
+    stream.received(bytes);
+    let mut lines = Vec::new();
+    loop {
+        match stream.decode() {
+            Ok(f) => {
+                let level = f.level().map(|l| format!("{l:?} ").to_uppercase());
+                lines.push(format!(
+                    "{}{}",
+                    level.unwrap_or_default(),
+                    f.display_message()
+                ));
+            }
+            Err(defmt_decoder::DecodeError::UnexpectedEof) => break,
+            Err(e) => {
+                lines.push(format!("(undecodable defmt data: {e:?})"));
+                break;
+            }
+        }
+    }
+    lines
+}
+
+/// `key=value` fields of a line, after the first word when it has no `=`.
+fn fields(line: &str) -> Vec<(&str, &str)> {
+    let line = line.split_once(" joints=").map_or(line, |(a, _)| a);
+    line.split_whitespace()
+        .filter_map(|t| t.split_once('='))
+        .collect()
+}
+
+fn field<T: std::str::FromStr>(line: &str, key: &str) -> T {
+    let v = fields(line)
+        .into_iter()
+        .find(|(k, _)| *k == key)
+        .unwrap_or_else(|| panic!("no {key}= in {line:?}"))
+        .1;
+    let v = v.strip_prefix("0x").map_or_else(
+        || v.to_string(),
+        |hex| u64::from_str_radix(hex, 16).unwrap().to_string(),
+    );
+    v.parse()
+        .unwrap_or_else(|_| panic!("bad {key}= in {line:?}"))
+}
+
+/// What the firmware or the host computed for one window.
+#[derive(Debug, PartialEq, Eq)]
+struct WindowResult {
+    events: u32,
+    points: usize,
+    t_min: i64,
+    t_max: i64,
+    crc_points: u32,
+    crc_input: u32,
+    crc_heads: u32,
+    joints: Vec<u16>,
+}
+
+/// The firmware's per-window lines: results and instructions.
+fn firmware_windows(lines: &[String]) -> Vec<(WindowResult, String)> {
+    let mut out = Vec::new();
+    for i in 0.. {
+        let tag = format!("window={i} ");
+        let of_window: Vec<&String> = lines.iter().filter(|l| l.starts_with(&tag)).collect();
+        if of_window.is_empty() {
+            break;
+        }
+        let find = |key: &str| {
+            *of_window
+                .iter()
+                .find(|l| l.contains(key))
+                .unwrap_or_else(|| panic!("window {i}: no line with {key}"))
+        };
+        let res = find("crc_heads=");
+        let joints = find(" joints=[")
+            .split_once(" joints=[")
+            .and_then(|(_, j)| j.strip_suffix(']'))
+            .expect("a joints list")
+            .split(',')
+            .map(|v| v.trim().parse().expect("a joint coordinate"))
+            .collect();
+        out.push((
+            WindowResult {
+                events: field(res, "events"),
+                points: field(res, "points"),
+                t_min: field(res, "t_min"),
+                t_max: field(res, "t_max"),
+                crc_points: field(res, "crc_points"),
+                crc_input: field(res, "crc_input"),
+                crc_heads: field(res, "crc_heads"),
+                joints,
+            },
+            find(" instructions ").clone(),
+        ));
+    }
+    out
+}
+
+/// The rasterizer's storage on the heap: the firmware's `Davis346Storage`, boxed.
+struct BoxedStorage(Box<Davis346Storage>);
+
+impl RasterStorage for BoxedStorage {
+    fn parts(&mut self) -> RasterParts<'_> {
+        self.0.parts()
+    }
+    fn words(&self) -> (&[u64], &[u64]) {
+        self.0.words()
+    }
+}
+
+fn crc_points(w: &Window<'_>) -> u32 {
+    let mut d = CRC.digest();
+    for p in w.iter() {
+        d.update(&p.x.to_le_bytes());
+        d.update(&p.y.to_le_bytes());
+        d.update(&[p.slice]);
+        d.update(&p.t_avg.to_bits().to_le_bytes());
+        d.update(&p.p_acc.to_le_bytes());
+        d.update(&p.cnt.to_le_bytes());
+    }
+    d.finalize()
+}
+
+fn crc_words<T: Copy>(values: impl IntoIterator<Item = T>, bytes: impl Fn(T) -> [u8; 4]) -> u32 {
+    let mut d = CRC.digest();
+    for v in values {
+        d.update(&bytes(v));
+    }
+    d.finalize()
+}
+
+/// The firmware's pipeline, on the host: same stream, storage, seed, blob and checksums.
+fn host_windows(events: &[Event], blob: &[u8]) -> Vec<WindowResult> {
+    let model = Model::parse(blob).unwrap();
+    let (j, w, h) = (model.joints(), model.width(), model.height());
+    let mut raster = Rasterizer::new(
+        RasterConfig::DAVIS346,
+        BoxedStorage(Box::new(Davis346Storage::new())),
+    )
+    .unwrap();
+    let mut rng = rng_from_seed(SEED);
+    let mut indices = vec![0u32; POINTS];
+    let mut rows = vec![[0f32; FEATURES]; POINTS];
+    let mut scratch = vec![0i32; scratch_words(&model)];
+    let (mut out_x, mut out_y) = (vec![0i32; j * w], vec![0i32; j * h]);
+    let mut joints = vec![Joint2d::default(); j];
+    let mut out = Vec::new();
+    for &e in events {
+        if let Pushed::Window(win) = raster.push(e) {
+            let input = sample_window(&win, POINTS, &mut rng, &mut indices, &mut rows).unwrap();
+            run_i8(&model, input, &mut scratch, &mut out_x, &mut out_y).unwrap();
+            decode(&out_x, &out_y, w, h, &mut joints).unwrap();
+            let s = win.summary();
+            out.push(WindowResult {
+                events: s.events,
+                points: win.len(),
+                t_min: s.t_min,
+                t_max: s.t_max,
+                crc_points: crc_points(&win),
+                crc_input: crc_words(input.iter().flatten().copied(), |v: f32| {
+                    v.to_bits().to_le_bytes()
+                }),
+                crc_heads: crc_words(out_x.iter().chain(&out_y).copied(), i32::to_le_bytes),
+                joints: joints.iter().flat_map(|p| [p.x, p.y]).collect(),
+            });
+        }
+    }
+    out
+}
+
+#[test]
+fn firmware_matches_the_host_core_under_qemu() {
+    require_tools();
+    let elf = build_firmware();
+    let lines = defmt_lines(&elf, &run_qemu(&elf));
+    let text = lines.join("\n");
+    assert!(
+        !lines.iter().any(|l| l.starts_with("ERROR")),
+        "the firmware reported an error:\n{text}"
+    );
+
+    let (_, events) = evs::decode(&std::fs::read(event_asset()).unwrap()).unwrap();
+    let blob = AlignedBlob::new(&std::fs::read(model_asset()).unwrap());
+    let host = host_windows(&events, blob.bytes());
+    let firmware = firmware_windows(&lines);
+    assert_eq!(host.len(), WINDOWS.len());
+    assert_eq!(
+        firmware.len(),
+        host.len(),
+        "the firmware reported {} windows:\n{text}",
+        firmware.len()
+    );
+    for (i, ((fw, _), h)) in firmware.iter().zip(&host).enumerate() {
+        assert_eq!(fw, h, "window {i}: firmware (left) and host (right) differ");
+    }
+    let done = lines
+        .iter()
+        .find(|l| l.starts_with("done:"))
+        .unwrap_or_else(|| panic!("no done line:\n{text}"));
+    assert_eq!(field::<u64>(done, "accepted"), events.len() as u64);
+    assert_eq!(field::<u64>(done, "dropped"), 0);
+
+    // No heap: no heap section or allocator symbol in the image, nothing heap-like in the map.
+    let image = image_budget(&elf).unwrap();
+    assert!(image.heap.is_empty(), "heap in the image: {:?}", image.heap);
+    let map = std::fs::read_to_string(elf.with_file_name("evpose-firmware.map")).unwrap();
+    for needle in [".heap", "__rust_alloc", "__rg_alloc"] {
+        assert!(!map.contains(needle), "the linker map mentions {needle}");
+    }
+
+    // The figures (goals, not asserts): see the README's "Firmware (Cortex-M7)" section.
+    eprintln!("firmware output:\n{text}");
+    let model = Model::parse(blob.bytes()).unwrap();
+    for (i, (_, instr)) in firmware.iter().enumerate() {
+        let infer: u64 = field(instr, "infer");
+        let macs = model.macs_per_point() * POINTS as u64 + model.macs_after_pooling();
+        eprintln!(
+            "window {i}: rasterize {:.1} instructions/event, infer {:.3} instructions/MAC \
+             overall, {} per point-layer MAC",
+            field::<f64>(instr, "rasterize") / 7_500.0,
+            infer as f64 / macs as f64,
+            field::<String>(instr, "per_point_layer_mac")
+        );
+    }
+    eprintln!(
+        "image: flash {} bytes, RAM {} bytes ({} static + {:?} stack)",
+        image.flash_bytes, image.ram_bytes, image.static_ram_bytes, image.stack_bytes
+    );
+}
