@@ -38,7 +38,20 @@ pub fn round_half_even(v: f32) -> f32 {
 pub fn round_clamp(v: f32, lo: f32, hi: f32) -> f32 {
     // Clamping first keeps the magic-number rounding in its exact range; values beyond the
     // bounds saturate either way. NaN cannot occur (finite integers times finite scales).
-    round_half_even(v.clamp(lo - 1.0, hi + 1.0)).clamp(lo, hi)
+    // max/min rather than clamp: same values for every non-NaN input, and the loops over
+    // layers vectorize (clamp's bound check and NaN rules keep them scalar).
+    round_half_even(v.max(lo - 1.0).min(hi + 1.0))
+        .max(lo)
+        .min(hi)
+}
+
+/// Rounds half to even straight to an integer: after adding 1.5 × 2^23 the rounded value sits
+/// in the low mantissa bits, so subtracting the constant's bit pattern gives it as an i32.
+/// Exact for `|v| < 2^22`; integer SIMD only (no float→int conversion), so loops vectorize.
+#[inline(always)]
+pub fn round_to_i32(v: f32) -> i32 {
+    const MAGIC: f32 = 12_582_912.0; // 1.5 × 2^23
+    (v + MAGIC).to_bits() as i32 - MAGIC.to_bits() as i32
 }
 
 /// Requantizes one int32 accumulator (bias included) to int8 with an optional LeakyReLU.
@@ -50,7 +63,8 @@ pub fn requantize(acc: i32, scale: f32, leaky: Option<f32>) -> i8 {
             v *= alpha;
         }
     }
-    round_clamp(v, -128.0, 127.0) as i8
+    // Same value as `round_clamp(v, -128.0, 127.0)`: clamp into the exact range, round, saturate.
+    round_to_i32(v.clamp(-129.0, 128.0)).clamp(-128, 127) as i8
 }
 
 /// Average pooling's single scaled rounding: `sat_i8(round(f32(sum) × (c / f32(n))))`.
@@ -131,6 +145,19 @@ mod tests {
         for i in -100_000..100_000 {
             let v = i as f32 * 0.001_3;
             assert_eq!(round_half_even(v), v.round_ties_even(), "{v}");
+        }
+    }
+
+    #[test]
+    fn integer_rounding_equals_float_rounding() {
+        let mut v = -300.0f32;
+        while v <= 300.0 {
+            assert_eq!(round_to_i32(v) as f32, round_half_even(v), "{v}");
+            v += 0.125;
+        }
+        for i in -200_000..200_000 {
+            let v = i as f32 * 0.000_77;
+            assert_eq!(round_to_i32(v) as f32, v.round_ties_even(), "{v}");
         }
     }
 
