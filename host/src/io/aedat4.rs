@@ -921,16 +921,7 @@ impl<R: Read> EventReader for Aedat4Reader<R> {
     /// Fills `batch` with up to [`BATCH_EVENTS`] events, from one or more packets (a large
     /// packet is split over several batches). After an error the reader is finished.
     fn read_batch(&mut self, batch: &mut Batch) -> Result<bool, ReadError> {
-        batch.clear();
-        if self.finished {
-            return Ok(false);
-        }
-        if let Err(e) = self.fill(batch) {
-            self.finished = true;
-            batch.clear();
-            return Err(e);
-        }
-        Ok(!batch.is_empty())
+        super::source::read_batch_guarded(self, batch)
     }
 
     fn notes(&self) -> ReadNotes {
@@ -1149,4 +1140,13 @@ fn info_xml(cameras: &[CameraInfo], compression: Compression) -> String {
     }
     x += "    </node>\n</dv>\n";
     x
+}
+
+impl<R: Read> super::source::Fill for Aedat4Reader<R> {
+    fn fill_batch(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
+        self.fill(batch)
+    }
+    fn finished(&mut self) -> &mut bool {
+        &mut self.finished
+    }
 }

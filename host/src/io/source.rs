@@ -6,7 +6,7 @@
 
 use std::io::{self, Read};
 
-use super::ReadError;
+use super::{Batch, ReadError};
 
 /// Bytes read from the file at a time.
 pub(crate) const CHUNK_BYTES: usize = 256 << 10;
@@ -249,6 +249,30 @@ pub(crate) fn known_sensor_size(name: &str) -> Option<(u16, u16)> {
 pub(crate) fn parse_geometry(s: &str) -> Option<(u16, u16)> {
     let (w, h) = s.trim().split_once(['x', 'X'])?;
     Some((w.trim().parse().ok()?, h.trim().parse().ok()?))
+}
+
+/// A reader's decoding step, run under [`read_batch_guarded`].
+pub(crate) trait Fill {
+    /// Appends the next events (at most [`super::BATCH_EVENTS`]) to `batch`.
+    fn fill_batch(&mut self, batch: &mut Batch) -> Result<(), ReadError>;
+    /// The flag that ends the reader (set after an error).
+    fn finished(&mut self) -> &mut bool;
+}
+
+/// The readers' batch contract, in one place: `batch` is cleared; a finished reader gives
+/// `Ok(false)`; an error finishes the reader and discards the partial batch, so later calls
+/// return `Ok(false)`.
+pub(crate) fn read_batch_guarded(r: &mut impl Fill, batch: &mut Batch) -> Result<bool, ReadError> {
+    batch.clear();
+    if *r.finished() {
+        return Ok(false);
+    }
+    if let Err(e) = r.fill_batch(batch) {
+        *r.finished() = true;
+        batch.clear();
+        return Err(e);
+    }
+    Ok(!batch.is_empty())
 }
 
 #[cfg(test)]

@@ -610,20 +610,20 @@ impl<R: Read> EventReader for TextReader<R> {
 
     /// Fills `batch` with up to [`BATCH_EVENTS`] events. After an error the reader is finished.
     fn read_batch(&mut self, batch: &mut Batch) -> Result<bool, ReadError> {
-        batch.clear();
-        if self.finished {
-            return Ok(false);
-        }
-        if let Err(e) = self.fill(batch) {
-            self.finished = true;
-            batch.clear();
-            return Err(e);
-        }
-        Ok(!batch.is_empty())
+        super::source::read_batch_guarded(self, batch)
     }
 
     fn notes(&self) -> ReadNotes {
         self.notes.clone()
+    }
+}
+
+impl<R: Read> super::source::Fill for TextReader<R> {
+    fn fill_batch(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
+        self.fill(batch)
+    }
+    fn finished(&mut self) -> &mut bool {
+        &mut self.finished
     }
 }
 
