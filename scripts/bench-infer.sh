@@ -29,5 +29,8 @@ rows = [("tract f32", e["tract_f32_ms"]), ("core f32", e["core_f32_ms"]),
 print(f"{e['points']} points, {e['macs']/1e9:.3f} GMAC, one thread, median ms (onnxruntime {o['onnxruntime_version']})")
 for name, ms in rows:
     print(f"  {name:<34} {ms:8.2f} ms   core int8 is {ms / e['core_i8_ms']:.2f}x faster")
+if e.get("peak_gmacs"):
+    print(f"core int8: {e['i8_gmacs']:.1f} GMAC/s, {100 * e['fraction_of_peak']:.1f} % of this CPU's "
+          f"one-thread int8 peak ({e['peak_gmacs']:.1f} GMAC/s)")
 PY
 rm -f "$points" "$points".*

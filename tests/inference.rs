@@ -245,6 +245,121 @@ fn int8_engine_gives_identical_integers_with_every_kernel_set() {
 }
 
 #[test]
+fn packed_int8_engine_gives_identical_integers_with_every_kernel_set_and_block() {
+    // The packed path with every table: native packed kernels where the CPU has them, the
+    // packed reference elsewhere (so this runs on any CI machine), against the row-major
+    // engine with the reference kernels.
+    use evpose_core::kernels::{Isa, Kernels};
+    use evpose_core::{
+        pack_point_layers, packed_bytes, run_i8_packed, run_i8_with, scratch_words_for_block, Model,
+    };
+    let case = small();
+    let net = model::import_onnx(&case.model).unwrap();
+    let q = quant::quantize(&net, &quant::calibrate(&net, &case.inputs[..1]).unwrap()).unwrap();
+    let blob = AlignedBlob::new(&q.blob().unwrap());
+    let m = Model::parse(blob.bytes()).unwrap();
+    let mut buf = vec![0u8; packed_bytes(&m)];
+    let layout = pack_point_layers(&m, &mut buf).unwrap();
+    let input = &case.inputs[4][..1000];
+    let outputs = || (vec![0; 13 * 346], vec![0; 13 * 260]);
+    let (mut wx, mut wy) = outputs();
+    let words = scratch_words_for_block(&m, 1);
+    run_i8_with(
+        &Kernels::reference(),
+        &m,
+        input,
+        &mut vec![0; words],
+        &mut wx,
+        &mut wy,
+    )
+    .unwrap();
+    let mut tested = Vec::new();
+    for k in Isa::ALL.iter().filter_map(|isa| isa.kernels()) {
+        for block in [1, 2, 5, 6, 7, 13, 24] {
+            let (mut x, mut y) = outputs();
+            let mut scratch = vec![0; scratch_words_for_block(&m, block)];
+            run_i8_packed(&k, &m, (&layout, &buf), input, &mut scratch, &mut x, &mut y).unwrap();
+            assert_eq!((&x, &y), (&wx, &wy), "{} block {block}", k.name());
+        }
+        tested.push(format!(
+            "{}{}",
+            k.name(),
+            if k.has_packed() { " (native)" } else { "" }
+        ));
+    }
+    eprintln!("packed engine tested with: {}", tested.join(", "));
+}
+
+#[test]
+fn packed_weights_of_another_model_or_a_short_buffer_are_errors() {
+    use evpose_core::kernels::Kernels;
+    use evpose_core::{
+        pack_point_layers, packed_bytes, run_i8_packed, scratch_words, InferError, Model,
+    };
+    let case = small();
+    let net = model::import_onnx(&case.model).unwrap();
+    let blob_of = |i: usize| {
+        let ranges = quant::calibrate(&net, &case.inputs[i..i + 1]).unwrap();
+        AlignedBlob::new(&quant::quantize(&net, &ranges).unwrap().blob().unwrap())
+    };
+    let (a, b) = (blob_of(0), blob_of(1));
+    let (ma, mb) = (
+        Model::parse(a.bytes()).unwrap(),
+        Model::parse(b.bytes()).unwrap(),
+    );
+    let need = packed_bytes(&ma);
+    assert!(need > 0);
+    assert_eq!(
+        pack_point_layers(&ma, &mut vec![0; need - 1]).unwrap_err(),
+        InferError::PackBuffer {
+            needed: need,
+            got: need - 1
+        }
+    );
+    let mut buf = vec![0u8; need];
+    let layout = pack_point_layers(&ma, &mut buf).unwrap();
+    let (mut x, mut y) = (vec![0; 13 * 346], vec![0; 13 * 260]);
+    let mut scratch = vec![0; scratch_words(&mb)];
+    let input = &case.inputs[0][..10];
+    let k = Kernels::detect();
+    assert_eq!(
+        run_i8_packed(
+            &k,
+            &mb,
+            (&layout, &buf),
+            input,
+            &mut scratch,
+            &mut x,
+            &mut y
+        ),
+        Err(InferError::PackedModel)
+    );
+    // The right model with a buffer that is not the packed one's length.
+    assert_eq!(
+        run_i8_packed(
+            &k,
+            &ma,
+            (&layout, &buf[..need / 2]),
+            input,
+            &mut scratch,
+            &mut x,
+            &mut y
+        ),
+        Err(InferError::PackedModel)
+    );
+    run_i8_packed(
+        &k,
+        &ma,
+        (&layout, &buf),
+        input,
+        &mut scratch,
+        &mut x,
+        &mut y,
+    )
+    .unwrap();
+}
+
+#[test]
 fn int8_engine_gives_identical_integers_for_every_block_size() {
     use evpose_core::{run_i8, scratch_words_for_block, Model};
     let case = small();
@@ -259,7 +374,7 @@ fn int8_engine_gives_identical_integers_for_every_block_size() {
         (x, y)
     };
     let one = run(scratch_words_for_block(&m, 1));
-    for block in [2, 3, 7, 8, 16] {
+    for block in [2, 3, 7, 8, 16, 24] {
         assert_eq!(
             run(scratch_words_for_block(&m, block)),
             one,

@@ -7,7 +7,7 @@
 use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use evpose_core::kernels::{Isa, Kernels};
+use evpose_core::kernels::{packed, Isa, Kernels, PackedI8};
 
 /// Deterministic pseudo-random values (xorshift).
 fn values<T>(n: usize, seed: u64, f: impl Fn(u64) -> T) -> Vec<T> {
@@ -69,7 +69,8 @@ fn matvec_i16(c: &mut Criterion) {
 
 fn matmat_i8(c: &mut Criterion) {
     // conv5 (K = 512 → 1024, 512 KiB of weights) for blocks of P points, against the best
-    // matvec called once per point (`matvec×P/<isa>`: the weights read P times).
+    // matvec called once per point (`matvec×P/<isa>`: the weights read P times), and the best
+    // kernel over pre-packed weights (`packed/<isa>`, where the CPU has one).
     let (k, n) = (512, 1024);
     let w = values(k * n, 7, |v| v as i8);
     let bias = values(n, 9, |v| (v as i32) >> 8);
@@ -84,6 +85,13 @@ fn matmat_i8(c: &mut Criterion) {
             });
         }
         let best = Kernels::detect();
+        if best.has_packed() {
+            let mut buf = vec![0u8; packed::packed_len(n, k)];
+            let (pw, _) = PackedI8::pack(&w, n, k, &mut buf).expect("pack");
+            g.bench_function(format!("packed/{}", best.name()), |b| {
+                b.iter(|| best.matmat_packed_i8(&pw, black_box(&x), k, p, &bias, &mut out, n))
+            });
+        }
         g.bench_function(format!("matvec×P/{}", best.name()), |b| {
             b.iter(|| {
                 for (xp, y) in black_box(&x).chunks_exact(k).zip(out.chunks_exact_mut(n)) {

@@ -10,6 +10,7 @@
 
 use core::fmt;
 
+use crate::kernels::packed::{packed_len, PackedI8};
 use crate::kernels::{self, Kernels};
 use crate::model::{Bias, DType, LayerKind, Model, Weights, FEATURES};
 use crate::quant::{self, InputCoding};
@@ -30,6 +31,15 @@ pub enum InferError {
         /// Words lent.
         got: usize,
     },
+    /// Too small a buffer for the packed weights ([`packed_bytes`]).
+    PackBuffer {
+        /// Bytes needed.
+        needed: usize,
+        /// Bytes lent.
+        got: usize,
+    },
+    /// The packed weights were packed from another model.
+    PackedModel,
     /// An output buffer has the wrong length.
     Output {
         /// Values needed (`J × W` or `J × H`).
@@ -47,6 +57,10 @@ impl fmt::Display for InferError {
             Self::Scratch { needed, got } => {
                 write!(f, "scratch needs {needed} words, got {got}")
             }
+            Self::PackBuffer { needed, got } => {
+                write!(f, "packed weights need {needed} bytes, got {got}")
+            }
+            Self::PackedModel => write!(f, "the packed weights belong to another model"),
             Self::Output { needed, got } => {
                 write!(f, "output needs {needed} values, got {got}")
             }
@@ -56,8 +70,9 @@ impl fmt::Display for InferError {
 
 impl core::error::Error for InferError {}
 
-/// Most points the int8 engine processes per pass over the point layers' weights.
-pub const MAX_BLOCK: usize = 16;
+/// Most points the int8 engine processes per pass over the point layers' weights (a multiple
+/// of the packed x86 kernel's six-point tile).
+pub const MAX_BLOCK: usize = 24;
 
 /// 32-bit scratch words an inference with `model` needs at least (either engine; the int8
 /// engine then processes one point at a time).
@@ -271,6 +286,82 @@ fn leaky_f32(v: &mut [f32], alpha: Option<f32>) {
     }
 }
 
+/// Alignment of the packed weights (a cache line), part of [`packed_bytes`].
+const PACK_ALIGN: usize = 64;
+
+/// Bytes of buffer [`pack_point_layers`] needs for `model`'s int8 point layers (the packed
+/// weights plus up to 63 bytes to align them to a cache line). 0 for an f32 model.
+pub fn packed_bytes(model: &Model<'_>) -> usize {
+    let packed: usize = (0..model.point_layer_count())
+        .map(|i| model.layer(i))
+        .filter(|l| matches!(l.weights, Weights::I8(_)))
+        .map(|l| packed_len(l.desc.out_dim as usize, l.desc.in_dim as usize))
+        .sum();
+    if packed == 0 {
+        0
+    } else {
+        packed + PACK_ALIGN - 1
+    }
+}
+
+/// Where [`pack_point_layers`] put each int8 point layer's packed weights (see
+/// [`kernels::packed`]) in the caller's buffer; [`run_i8_packed`] reads them from there.
+///
+/// Packing is for CPUs with a native packed kernel ([`Kernels::has_packed`]: x86 AVX-512
+/// VNNI). It doubles the point layers' weight memory, so an MCU runs the blob's row-major
+/// weights in place with [`run_i8`] instead.
+#[derive(Clone, Copy, Debug)]
+pub struct PackedLayout {
+    /// `(start, len)` of each point layer's packed weights in the buffer (len 0: not packed).
+    layers: [(usize, usize); crate::model::MAX_POINT_LAYERS],
+    /// The model's blob checksum, to refuse packed weights of another model.
+    checksum: u32,
+}
+
+impl PackedLayout {
+    /// Point layer `i`'s packed weights in `buf`, if they are there and fit its shape.
+    fn layer<'a>(&self, i: usize, rows: usize, k: usize, buf: &'a [u8]) -> Option<PackedI8<'a>> {
+        let &(start, len) = self.layers.get(i)?;
+        PackedI8::from_packed(buf.get(start..start.checked_add(len)?)?, rows, k)
+    }
+}
+
+/// Packs `model`'s int8 point layers into `buf` (at least [`packed_bytes`] long) and says
+/// where they are; keep both for [`run_i8_packed`]. The i16 first layer is not packed (five
+/// inputs: nothing to gain). The weights start at a cache-line boundary of `buf`, so a buffer
+/// must not move between packing and use to keep that (a `Vec`'s heap buffer does not).
+pub fn pack_point_layers(model: &Model<'_>, buf: &mut [u8]) -> Result<PackedLayout, InferError> {
+    let needed = packed_bytes(model);
+    if buf.len() < needed {
+        return Err(InferError::PackBuffer {
+            needed,
+            got: buf.len(),
+        });
+    }
+    let mut at = buf.as_ptr().align_offset(PACK_ALIGN).min(PACK_ALIGN - 1);
+    let got = buf.len();
+    let mut layers = [(0, 0); crate::model::MAX_POINT_LAYERS];
+    for (i, slot) in layers
+        .iter_mut()
+        .enumerate()
+        .take(model.point_layer_count())
+    {
+        let l = model.layer(i);
+        if let Weights::I8(w) = l.weights {
+            let (rows, k) = (l.desc.out_dim as usize, l.desc.in_dim as usize);
+            let len = packed_len(rows, k);
+            PackedI8::pack(w, rows, k, &mut buf[at..])
+                .ok_or(InferError::PackBuffer { needed, got })?;
+            *slot = (at, len);
+            at += len;
+        }
+    }
+    Ok(PackedLayout {
+        layers,
+        checksum: model.checksum(),
+    })
+}
+
 /// Runs the int8 engine on `points`, writing the heads' int32 accumulators (bias included):
 /// x (`J × W`) and y (`J × H`), with the kernels chosen at compile time ([`Kernels::best`]).
 pub fn run_i8(
@@ -288,6 +379,46 @@ pub fn run_i8(
 pub fn run_i8_with(
     k: &Kernels,
     model: &Model<'_>,
+    points: &[[f32; FEATURES]],
+    scratch: &mut [i32],
+    out_x: &mut [i32],
+    out_y: &mut [i32],
+) -> Result<(), InferError> {
+    run_i8_impl(k, model, None, points, scratch, out_x, out_y)
+}
+
+/// [`run_i8_with`] with the point layers' weights pre-packed ([`pack_point_layers`]) for
+/// [`Kernels::matmat_packed_i8`]: the same integers, faster where the table has a native
+/// packed kernel ([`Kernels::has_packed`]). `packed` is the layout and the buffer
+/// [`pack_point_layers`] filled.
+#[allow(clippy::too_many_arguments)]
+pub fn run_i8_packed(
+    k: &Kernels,
+    model: &Model<'_>,
+    (layout, packed): (&PackedLayout, &[u8]),
+    points: &[[f32; FEATURES]],
+    scratch: &mut [i32],
+    out_x: &mut [i32],
+    out_y: &mut [i32],
+) -> Result<(), InferError> {
+    if layout.checksum != model.checksum() {
+        return Err(InferError::PackedModel);
+    }
+    run_i8_impl(
+        k,
+        model,
+        Some((layout, packed)),
+        points,
+        scratch,
+        out_x,
+        out_y,
+    )
+}
+
+fn run_i8_impl(
+    k: &Kernels,
+    model: &Model<'_>,
+    packed: Option<(&PackedLayout, &[u8])>,
     points: &[[f32; FEATURES]],
     scratch: &mut [i32],
     out_x: &mut [i32],
@@ -341,6 +472,15 @@ pub fn run_i8_with(
                         k.matvec_i16(w, &x[..FEATURES], bias, acc);
                     }
                 }
+                Weights::I8(_) if packed.is_some() => {
+                    // The sources are a contiguous run of each point's activation row: read
+                    // them in place, rows `acts_len` apart.
+                    let src = source_range(l.desc.sources, &offs);
+                    let w = packed
+                        .and_then(|(layout, buf)| layout.layer(i, out_dim, src.len(), buf))
+                        .ok_or(InferError::PackedModel)?;
+                    k.matmat_packed_i8(&w, &acts[src.start..], acts_len, n, bias, acc, out_dim);
+                }
                 Weights::I8(w) => {
                     // Gather each point's sources (a contiguous run of its activations) into
                     // rows of K, then one pass over the weights for the whole block.
@@ -365,7 +505,7 @@ pub fn run_i8_with(
                 .chunks_exact(out_dim)
                 .zip(acts.chunks_exact_mut(acts_len))
             {
-                requantize_all(
+                k.requantize_i8(
                     row,
                     l.scales,
                     l.desc.leaky,
@@ -374,11 +514,7 @@ pub fn run_i8_with(
             }
         }
         for act in acts.chunks_exact(acts_len).take(n) {
-            let y = &act[offs[last]..offs[last + 1]];
-            for ((m, s), &v) in max.iter_mut().zip(sum.iter_mut()).zip(y) {
-                *m = (*m).max(v);
-                *s += i32::from(v);
-            }
+            k.pool_i8(max, sum, &act[offs[last]..offs[last + 1]]);
         }
     }
     let n = points.len() as u32;
@@ -395,7 +531,7 @@ pub fn run_i8_with(
         let out_dim = l.desc.out_dim as usize;
         let acc = &mut acc[..out_dim];
         k.matvec_i8(w, &cur.0[..width], bias, acc);
-        requantize_all(acc, l.scales, l.desc.leaky, &mut cur.1[..out_dim]);
+        k.requantize_i8(acc, l.scales, l.desc.leaky, &mut cur.1[..out_dim]);
         width = out_dim;
         cur = (cur.1, cur.0);
     }
@@ -410,26 +546,10 @@ pub fn run_i8_with(
             .chunks_exact(model.head_dim())
             .zip(out.chunks_exact_mut(o))
         {
-            kernels::matvec_i8(w, f, bias, dst);
+            k.matvec_i8(w, f, bias, dst);
         }
     }
     Ok(())
-}
-
-fn requantize_all(acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut [i8]) {
-    // Two loops without a per-element branch on the option, so that both vectorize.
-    match leaky {
-        Some(alpha) => {
-            for ((o, &a), &s) in out.iter_mut().zip(acc).zip(scales) {
-                *o = quant::requantize(a, s, Some(alpha));
-            }
-        }
-        None => {
-            for ((o, &a), &s) in out.iter_mut().zip(acc).zip(scales) {
-                *o = quant::requantize(a, s, None);
-            }
-        }
-    }
 }
 
 /// Which kind of layer reads the pooled features (for reports).

@@ -14,7 +14,7 @@
 //! | model | [`model`] | the `.evq` model blob, validated and read in place |
 //! | quantization | [`quant`] | the int8 engine's rounding and requantization, defined once |
 //! | inference | [`infer`] | f32 and int8 PointNet engines, fused per point, fixed scratch |
-//! | kernels | [`kernels`] | matrix-vector kernels: scalar reference and optimized versions |
+//! | kernels | [`kernels`] | matrix kernels (row-major and packed weights), requantization, pooling: scalar reference and optimized versions |
 //! | decoding | [`simdr`] | SimDR labels and argmax decoding to 2-D joints |
 //!
 //! Bad input never panics: it yields a typed error or a counted drop.
@@ -49,8 +49,8 @@ pub mod simdr;
 
 pub use event::Event;
 pub use infer::{
-    run_f32, run_f32_observed, run_i8, run_i8_with, scratch_words, scratch_words_for_block,
-    InferError, Stage,
+    pack_point_layers, packed_bytes, run_f32, run_f32_observed, run_i8, run_i8_packed, run_i8_with,
+    scratch_words, scratch_words_for_block, InferError, PackedLayout, Stage,
 };
 pub use model::{DType, Model, ModelError};
 pub use raster::{

@@ -621,4 +621,8 @@ impl<'a> Model<'a> {
     pub fn bytes(&self) -> &'a [u8] {
         self.blob
     }
+    /// The blob's CRC-32 (from the header, checked by [`Model::parse`]): identifies the model.
+    pub fn checksum(&self) -> u32 {
+        u32_at(self.blob, 12)
+    }
 }

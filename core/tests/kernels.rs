@@ -2,7 +2,7 @@
 //!
 //! Kernels whose instructions the CPU lacks are skipped and named (`--nocapture` shows them).
 
-use evpose_core::kernels::{self, reference, Isa, Kernels};
+use evpose_core::kernels::{self, packed, reference, Isa, Kernels, PackedI8};
 use proptest::prelude::*;
 
 /// The kernels to test: every one this CPU runs except the reference itself.
@@ -618,6 +618,274 @@ fn i8_matmat_equals_matvec_per_point() {
             kern.matvec_i8(&w, xp, &b, y);
         }
         assert_eq!(mm, mv, "{}", kern.name());
+    }
+}
+
+// The kernels over pre-packed weights.
+
+/// The expected `out` of a packed call, from the reference matvec per point on the row-major
+/// weights, with the shape rules written out independently of `packed::packed_dims`.
+#[allow(clippy::too_many_arguments)]
+fn expected_packed(
+    w: &[i8],
+    rows: usize,
+    k: usize,
+    x: &[i8],
+    x_stride: usize,
+    points: usize,
+    bias: &[i32],
+    out: &[i32],
+    out_stride: usize,
+) -> Vec<i32> {
+    let mut o = out.to_vec();
+    let n = rows.min(bias.len()).min(out_stride);
+    if n == 0 {
+        return o;
+    }
+    for p in 0..points {
+        if p * x_stride + k > x.len() || p * out_stride + n > o.len() {
+            break;
+        }
+        let y = &mut o[p * out_stride..][..n];
+        let want = expected_i8(&w[..n * k], &x[p * x_stride..][..k], &bias[..n], y);
+        y.copy_from_slice(&want);
+    }
+    o
+}
+
+/// Packs `w` and checks every table's packed kernel (native or the reference fallback) and the
+/// raw reference against [`expected_packed`], with a sentinel-filled `out` of `out_len`.
+#[allow(clippy::too_many_arguments)]
+fn check_packed(
+    w: &[i8],
+    rows: usize,
+    k: usize,
+    x: &[i8],
+    x_stride: usize,
+    points: usize,
+    bias: &[i32],
+    out_len: usize,
+    out_stride: usize,
+) {
+    let mut buf = vec![0u8; packed::packed_len(rows, k) + 5];
+    let (pw, rest) = PackedI8::pack(w, rows, k, &mut buf).expect("pack");
+    assert_eq!(rest.len(), 5);
+    let out = vec![0x5A5A_5A5A; out_len];
+    let want = expected_packed(w, rows, k, x, x_stride, points, bias, &out, out_stride);
+    let ctx = format!(
+        "rows {rows}, K {k}, x {} stride {x_stride}, points {points}, bias {}, out {out_len} \
+         stride {out_stride}",
+        x.len(),
+        bias.len()
+    );
+    let mut got = out.clone();
+    packed::matmat_packed_i8(&pw, x, x_stride, points, bias, &mut got, out_stride);
+    assert_eq!(got, want, "packed reference, {ctx}");
+    for kern in with_reference_table() {
+        let mut got = out.clone();
+        kern.matmat_packed_i8(&pw, x, x_stride, points, bias, &mut got, out_stride);
+        assert_eq!(got, want, "{} packed, {ctx}", kern.name());
+    }
+}
+
+/// `(w, rows, k, x, x_stride, points, bias, out_len, out_stride)`: up to 140 rows (partial and
+/// several row groups), up to 30 points (past one 24-point pass), point rows that overlap,
+/// touch or leave gaps, and `x`, `bias` and `out` that may be short.
+#[allow(clippy::type_complexity)]
+fn packed_shape(
+    k: std::ops::Range<usize>,
+) -> impl Strategy<
+    Value = (
+        Vec<i8>,
+        usize,
+        usize,
+        Vec<i8>,
+        usize,
+        usize,
+        Vec<i32>,
+        usize,
+        usize,
+    ),
+> {
+    (
+        k,
+        1usize..140,
+        0usize..=30,
+        (0usize..3, 0usize..8),
+        (prop::bool::weighted(0.8), 0usize..=40),
+        (prop::bool::weighted(0.8), 0usize..4),
+        (prop::bool::weighted(0.8), 0usize..5, 0usize..=200),
+    )
+        .prop_flat_map(
+            |(k, rows, points, (xs_kind, dxs), (whole_x, dx), (whole_b, db), (wide, ds, cut))| {
+                let x_stride = match xs_kind {
+                    0 => k,
+                    1 => k + dxs,
+                    _ => k.saturating_sub(dxs),
+                };
+                let x_full = if points == 0 {
+                    0
+                } else {
+                    (points - 1) * x_stride + k
+                };
+                let x_len = if whole_x {
+                    x_full
+                } else {
+                    x_full.saturating_sub(dx)
+                };
+                let b_len = if whole_b {
+                    rows
+                } else {
+                    rows.saturating_sub(db)
+                };
+                let out_stride = if wide {
+                    rows + ds
+                } else {
+                    rows.saturating_sub(ds)
+                };
+                let out_full = points * out_stride;
+                let out_len = if wide {
+                    out_full
+                } else {
+                    out_full.saturating_sub(cut)
+                };
+                (
+                    prop::collection::vec(any_i8(), rows * k),
+                    Just(rows),
+                    Just(k),
+                    prop::collection::vec(any_i8(), x_len),
+                    Just(x_stride),
+                    Just(points),
+                    prop::collection::vec(-(1i32 << 30)..(1 << 30), b_len),
+                    Just(out_len),
+                    Just(out_stride),
+                )
+            },
+        )
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    #[test]
+    fn i8_packed_kernels_match_reference(
+        (w, r, k, x, xs, p, b, n, s) in packed_shape(1..600)
+    ) {
+        check_packed(&w, r, k, &x, xs, p, &b, n, s);
+    }
+
+    #[test]
+    fn i8_packed_kernels_match_reference_small_k(
+        (w, r, k, x, xs, p, b, n, s) in packed_shape(1..20)
+    ) {
+        // Every tail of the four-input step, and K below one step.
+        check_packed(&w, r, k, &x, xs, p, &b, n, s);
+    }
+}
+
+#[test]
+fn i8_packed_all_products_and_model_shapes() {
+    // Every int8 product: 256 rows, one per weight value, times points holding every value.
+    let k = 67;
+    let w: Vec<i8> = (i8::MIN..=i8::MAX)
+        .flat_map(|a| std::iter::repeat_n(a, k))
+        .collect();
+    let x: Vec<i8> = (i8::MIN..=i8::MAX)
+        .flat_map(|a| std::iter::repeat_n(a, k))
+        .collect();
+    let b: Vec<i32> = (0..256).map(|i| i * 7 - 900).collect();
+    check_packed(&w, 256, k, &x, k, 256, &b, 256 * 256, 256);
+    // The PointNet point layers as the engine calls them: rows of a 1536-wide activation
+    // buffer, sources at its start, blocks of 16 points and fewer.
+    let mut s = 0x0DDB_1A5E_5BAD_5EEDu64;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        s
+    };
+    for (k, n) in [(64, 64), (64, 128), (128, 256), (256, 1024), (512, 1024)] {
+        let w: Vec<i8> = (0..k * n).map(|_| next() as i8).collect();
+        let b: Vec<i32> = (0..n).map(|_| (next() as i32) >> 8).collect();
+        let x: Vec<i8> = (0..16 * 1536).map(|_| next() as i8).collect();
+        for p in [1, 5, 16] {
+            check_packed(&w, n, k, &x, 1536, p, &b, p * n, n);
+        }
+    }
+}
+
+#[test]
+fn vnni_tables_have_a_native_packed_kernel() {
+    for kern in with_reference_table() {
+        assert_eq!(
+            kern.has_packed(),
+            kern.isa() == Isa::X86Avx512Vnni,
+            "{}",
+            kern.name()
+        );
+    }
+}
+
+// Requantization and pooling, the engine's loops between kernels.
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(512))]
+
+    #[test]
+    fn requantize_matches_reference_in_every_table(
+        acc in prop::collection::vec(
+            prop_oneof![any::<i32>(), -100_000i32..100_000, -300i32..300], 0..200),
+        scales in prop::collection::vec(
+            prop_oneof![1e-6f32..1e-2, 1e-2f32..2.0, Just(1.0f32), Just(0.5f32)], 0..200),
+        leaky in prop_oneof![Just(None), Just(Some(0.01f32)), (0.0f32..1.0).prop_map(Some)],
+    ) {
+        let mut want = vec![7i8; acc.len().max(scales.len())];
+        reference::requantize_i8(&acc, &scales, leaky, &mut want);
+        // Independently: the scalar definition element by element, untouched past the shorter.
+        for (i, w) in want.iter().enumerate() {
+            let expect = match (acc.get(i), scales.get(i)) {
+                (Some(&a), Some(&s)) => evpose_core::quant::requantize(a, s, leaky),
+                _ => 7,
+            };
+            prop_assert_eq!(*w, expect);
+        }
+        for kern in with_reference_table() {
+            let mut got = vec![7i8; want.len()];
+            kern.requantize_i8(&acc, &scales, leaky, &mut got);
+            prop_assert_eq!(&got, &want, "{}", kern.name());
+        }
+    }
+
+    #[test]
+    fn pooling_matches_reference_in_every_table(
+        max in prop::collection::vec(any::<i8>(), 0..300),
+        sum in prop::collection::vec(any::<i32>(), 0..300),
+        y in prop::collection::vec(any::<i8>(), 0..300),
+    ) {
+        let n = max.len().min(sum.len()).min(y.len());
+        let (mut wm, mut ws) = (max.clone(), sum.clone());
+        for i in 0..n {
+            wm[i] = wm[i].max(y[i]);
+            ws[i] = ws[i].wrapping_add(i32::from(y[i]));
+        }
+        for kern in with_reference_table() {
+            let (mut m, mut s) = (max.clone(), sum.clone());
+            kern.pool_i8(&mut m, &mut s, &y);
+            prop_assert_eq!((&m, &s), (&wm, &ws), "{}", kern.name());
+        }
+    }
+}
+
+#[test]
+fn peak_loop_runs_every_family_this_cpu_has() {
+    assert_eq!(kernels::peak_loop(Isa::Reference, 10), None);
+    for isa in Isa::ALL.into_iter().filter(|&i| i != Isa::Reference) {
+        let macs = kernels::peak_loop(isa, 1000);
+        assert_eq!(macs.is_some(), isa.is_supported_here(), "{}", isa.name());
+        if let Some(m) = macs {
+            // 1000 rounds of 12 instructions of 16 to 64 MACs each.
+            assert!(m % 12_000 == 0 && (16..=64).contains(&(m / 12_000)), "{m}");
+        }
     }
 }
 

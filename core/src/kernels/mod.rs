@@ -49,12 +49,31 @@
 //! four output rows by up to four points at a time, so each weight vector loaded is used for
 //! several points and a layer's weights are streamed from memory once per 16 points instead of
 //! once per point.
+//!
+//! # Packed weights
+//!
+//! Row-major weights cost the x86 kernels a horizontal sum per output. [`packed`] defines a
+//! second layout, made once from the blob's rows into a buffer the caller owns, in which the
+//! lanes of a register are 16 outputs: [`Kernels::matmat_packed_i8`] over it needs no
+//! horizontal sums and reads each point's inputs in place. The AVX-512 VNNI table has a native
+//! packed kernel ([`Kernels::has_packed`]); every other table runs the packed reference, so the
+//! packed engine ([`crate::infer::run_i8_packed`]) works, and is tested, everywhere.
+//!
+//! # Between the kernels
+//!
+//! The engine's requantization ([`reference::requantize_i8`]) and pooling
+//! ([`reference::pool_i8`]) loops are in the table too: the x86 tables compile the same scalar
+//! code with AVX2 or AVX-512 enabled, so the compiler vectorizes it for those registers (a
+//! default `x86_64` build would otherwise get 128-bit SSE2 for them). IEEE arithmetic gives the
+//! same result in every lane, and the tests compare them with `==` anyway.
 
+pub mod packed;
 pub mod reference;
 
 #[cfg(target_arch = "x86_64")]
 pub mod x86;
 
+pub use packed::{MatmatPackedI8, PackedI8};
 pub use reference::matvec_f32;
 
 /// The int8 kernel signature: `(w, x, bias, out)`.
@@ -76,6 +95,13 @@ pub type MatvecI16 = fn(&[i16], &[i16], &[i32], &mut [i32]);
 /// Nothing panics: `K = 0`, `P = 0`, `O = 0`, `S = 0` and lengths that disagree all follow from
 /// the rule above.
 pub type MatmatI8 = fn(&[i8], usize, &[i8], &[i32], &mut [i32], usize);
+
+/// The requantization kernel signature: `(acc, scales, leaky, out)`, see
+/// [`reference::requantize_i8`].
+pub type RequantizeI8 = fn(&[i32], &[f32], Option<f32>, &mut [i8]);
+
+/// The pooling kernel signature: `(max, sum, y)`, see [`reference::pool_i8`].
+pub type PoolI8 = fn(&mut [i8], &mut [i32], &[i8]);
 
 /// The rows every kernel computes for `K = x.len()`: those the reference's
 /// `out.iter_mut().zip(w.chunks_exact(K)).zip(bias)` visits (for `K = 0`, `min(out, bias)`).
@@ -176,8 +202,9 @@ impl Isa {
     }
 }
 
-/// One int8 and one i16 matrix-vector kernel and one int8 matrix-matrix kernel, every one
-/// bit-exact with [`reference`](mod@reference).
+/// One int8 and one i16 matrix-vector kernel, one int8 matrix-matrix kernel, the packed
+/// kernel where the ISA has one, and the requantization and pooling loops, every one bit-exact
+/// with [`reference`](mod@reference).
 ///
 /// Only kernels the CPU runs can be put in a table (the fields are private), so the calls are
 /// safe. Pick once, keep the table:
@@ -204,6 +231,9 @@ pub struct Kernels {
     i8: MatvecI8,
     i16: MatvecI16,
     i8mm: MatmatI8,
+    i8pk: Option<MatmatPackedI8>,
+    requant: RequantizeI8,
+    pool: PoolI8,
 }
 
 impl Kernels {
@@ -215,6 +245,9 @@ impl Kernels {
             i8: reference_i8,
             i16: reference_i16,
             i8mm: reference::matmat_i8,
+            i8pk: None,
+            requant: reference_requantize,
+            pool: reference_pool,
         }
     }
 
@@ -300,6 +333,56 @@ impl Kernels {
     ) {
         (self.i8mm)(w, k, x, bias, out, out_stride)
     }
+
+    /// [`reference::requantize_i8`], bit-exact, compiled for this table's registers.
+    #[inline]
+    pub fn requantize_i8(&self, acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut [i8]) {
+        (self.requant)(acc, scales, leaky, out)
+    }
+
+    /// [`reference::pool_i8`], bit-exact, compiled for this table's registers.
+    #[inline]
+    pub fn pool_i8(&self, max: &mut [i8], sum: &mut [i32], y: &[i8]) {
+        (self.pool)(max, sum, y)
+    }
+
+    /// Whether this table has a native kernel for [packed](mod@packed) weights (else
+    /// [`Kernels::matmat_packed_i8`] runs the reference, and the row-major
+    /// [`Kernels::matmat_i8`] is the faster choice).
+    pub const fn has_packed(&self) -> bool {
+        self.i8pk.is_some()
+    }
+
+    /// [`packed::matmat_packed_i8`], bit-exact, with this table's packed kernel (the reference
+    /// where it has none): the points `x[p·x_stride..][..K]` for `p < points` through the packed
+    /// weights `w`, point `p`'s outputs at `out[p·out_stride..][..O]`; see [`MatmatPackedI8`]
+    /// and [`packed::packed_dims`] for what is written.
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    pub fn matmat_packed_i8(
+        &self,
+        w: &PackedI8<'_>,
+        x: &[i8],
+        x_stride: usize,
+        points: usize,
+        bias: &[i32],
+        out: &mut [i32],
+        out_stride: usize,
+    ) {
+        let kernel = self.i8pk.unwrap_or(packed::matmat_packed_i8);
+        kernel(w, x, x_stride, points, bias, out, out_stride)
+    }
+}
+
+/// [`reference::requantize_i8`] as a function (the reference is `inline(always)`, for the
+/// x86 tables to compile it for their registers).
+fn reference_requantize(acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut [i8]) {
+    reference::requantize_i8(acc, scales, leaky, out)
+}
+
+/// [`reference::pool_i8`] as a function.
+fn reference_pool(max: &mut [i8], sum: &mut [i32], y: &[i8]) {
+    reference::pool_i8(max, sum, y)
 }
 
 /// [`reference::matvec_i8`], with `K = 0` defined as `out[o] = bias[o]` (the reference panics).
@@ -319,6 +402,22 @@ fn reference_i16(w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]) {
         out[..n].copy_from_slice(&bias[..n]);
     } else {
         reference::matvec_i16(w, x, bias, out);
+    }
+}
+
+/// Runs `iters` rounds of a loop of independent multiply-accumulate instructions of `isa`'s
+/// widest int8 step and returns the MACs it did; timing it gives this CPU's one-thread int8
+/// peak for that family (what benchmarks report a fraction of). `None` for the reference, for a
+/// family the CPU lacks, and on other architectures.
+pub fn peak_loop(isa: Isa, iters: u64) -> Option<u64> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        x86::peak_loop(isa, iters)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = (isa, iters);
+        None
     }
 }
 

@@ -46,3 +46,36 @@ pub fn matvec_f32(w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]) {
         *o = row.iter().zip(x).fold(0.0, |acc, (&w, &x)| acc + w * x) + b;
     }
 }
+
+/// Requantizes a row of int32 accumulators to int8 with [`crate::quant::requantize`]:
+/// `out[i] = requantize(acc[i], scales[i], leaky)` for every `i` the three slices share.
+///
+/// Written as two loops without a per-element branch on the option, so that each vectorizes;
+/// the x86 tables compile this same code for wider registers (IEEE arithmetic is the same in
+/// every lane, so the integers are too).
+#[inline(always)]
+pub fn requantize_i8(acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut [i8]) {
+    use crate::quant::requantize;
+    match leaky {
+        Some(alpha) => {
+            for ((o, &a), &s) in out.iter_mut().zip(acc).zip(scales) {
+                *o = requantize(a, s, Some(alpha));
+            }
+        }
+        None => {
+            for ((o, &a), &s) in out.iter_mut().zip(acc).zip(scales) {
+                *o = requantize(a, s, None);
+            }
+        }
+    }
+}
+
+/// One point's contribution to max and sum pooling: `max[i] = max(max[i], y[i])`,
+/// `sum[i] += y[i]` (wrapping) for every `i` the three slices share.
+#[inline(always)]
+pub fn pool_i8(max: &mut [i8], sum: &mut [i32], y: &[i8]) {
+    for ((m, s), &v) in max.iter_mut().zip(sum.iter_mut()).zip(y) {
+        *m = (*m).max(v);
+        *s = s.wrapping_add(i32::from(v));
+    }
+}

@@ -32,6 +32,11 @@
 //! is computed once per point. The 4 × 4 blocks of 512-bit sums are reduced by one shuffle tree
 //! (`hsum16_512`).
 //!
+//! The packed kernel (`x86/packed.rs`, [`matmat_packed_i8_avx512vnni`]) needs neither the
+//! shuffle tree nor the per-call correction of the weights: the weights are packed as `w + 128`
+//! with 16 outputs across the lanes, the points' inputs are the signed operand, broadcast four
+//! bytes at a time, and `128·Σx` is subtracted once per point.
+//!
 //! The `unsafe fn`s are public for callers that do their own feature checks; safe code gets them
 //! through [`super::Kernels`], which hands out only kernels the CPU supports.
 #![allow(unsafe_code)]
@@ -42,6 +47,12 @@
 use core::arch::x86_64::*;
 
 use super::{rows, Isa, Kernels};
+
+mod packed;
+mod peak;
+
+pub use packed::matmat_packed_i8_avx512vnni;
+pub use peak::peak_loop;
 
 /// The x86 features the kernels use, as reported by `cpuid` and enabled by the OS (`xgetbv`).
 ///
@@ -170,7 +181,23 @@ pub(super) const fn kernels(isa: Isa, features: Features) -> Option<Kernels> {
         Isa::X86Avx512Vnni => (avx512vnni_i8, avx512vnni_i16, avx512vnni_i8mm),
         _ => return None,
     };
-    Some(Kernels { isa, i8, i16, i8mm })
+    let i8pk: Option<super::MatmatPackedI8> = match isa {
+        Isa::X86Avx512Vnni => Some(avx512vnni_i8pk),
+        _ => None,
+    };
+    let (requant, pool): (super::RequantizeI8, super::PoolI8) = match isa {
+        Isa::X86Avx2 | Isa::X86AvxVnni => (avx2_requant, avx2_pool),
+        _ => (avx512_requant, avx512_pool),
+    };
+    Some(Kernels {
+        isa,
+        i8,
+        i16,
+        i8mm,
+        i8pk,
+        requant,
+        pool,
+    })
 }
 
 /// Safe wrappers with the reference's signature, for [`Kernels`]' function pointers.
@@ -204,6 +231,52 @@ macro_rules! checked_mm {
             unsafe { $kernel(w, k, x, bias, out, out_stride) }
         }
     )*};
+}
+
+/// The reference requantization and pooling loops compiled for AVX2 or AVX-512 registers
+/// (the same scalar code, vectorized by the compiler: the same IEEE operations per lane), with
+/// the safe wrappers `kernels` stores.
+macro_rules! widened {
+    ($($name:ident / $safe:ident: $features:literal => $body:ident($($arg:ident: $t:ty),*);)*) => {$(
+        /// [`super::reference`]'s loop of the same name, for wider registers.
+        ///
+        /// # Safety
+        /// The CPU must support the enabled features.
+        #[target_feature(enable = $features)]
+        unsafe fn $name($($arg: $t),*) {
+            super::reference::$body($($arg),*)
+        }
+
+        fn $safe($($arg: $t),*) {
+            // SAFETY: as for `checked!`: only reachable through a `Kernels` whose ISA the CPU
+            // supports (AVX2 for every x86 table, AVX-512F/BW/VL for the AVX-512 ones).
+            unsafe { $name($($arg),*) }
+        }
+    )*};
+}
+
+widened! {
+    requant_avx2 / avx2_requant: "avx2" => requantize_i8(
+        acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut [i8]);
+    requant_avx512 / avx512_requant: "avx2,avx512f,avx512bw,avx512vl" => requantize_i8(
+        acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut [i8]);
+    pool_avx2 / avx2_pool: "avx2" => pool_i8(max: &mut [i8], sum: &mut [i32], y: &[i8]);
+    pool_avx512 / avx512_pool: "avx2,avx512f,avx512bw,avx512vl" => pool_i8(
+        max: &mut [i8], sum: &mut [i32], y: &[i8]);
+}
+
+/// The packed kernel behind the same kind of wrapper.
+fn avx512vnni_i8pk(
+    w: &super::PackedI8<'_>,
+    x: &[i8],
+    x_stride: usize,
+    points: usize,
+    bias: &[i32],
+    out: &mut [i32],
+    out_stride: usize,
+) {
+    // SAFETY: as for `checked!`: only reachable through a `Kernels` whose ISA the CPU supports.
+    unsafe { matmat_packed_i8_avx512vnni(w, x, x_stride, points, bias, out, out_stride) }
 }
 
 checked_mm! {

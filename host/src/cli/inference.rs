@@ -385,7 +385,12 @@ pub struct InferBench {
     pub speedup_i8_vs_f32: f64,
     /// Core int8 MACs per second.
     pub i8_gmacs: f64,
-    /// Kernel family the int8 engine used.
+    /// This CPU's one-thread int8 peak for that kernel family, GMAC/s (a loop of independent
+    /// multiply-accumulate instructions, best of 5); absent for the reference kernels.
+    pub peak_gmacs: Option<f64>,
+    /// `i8_gmacs / peak_gmacs`.
+    pub fraction_of_peak: Option<f64>,
+    /// Kernel family the int8 engine used, and whether over packed weights.
     pub kernels: String,
 }
 
@@ -399,6 +404,18 @@ fn median_ms(iters: u32, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
     }
     t.sort_by(f64::total_cmp);
     Ok(t[t.len() / 2])
+}
+
+/// GMAC/s of [`evpose_core::kernels::peak_loop`] for `isa`, best of 5 runs of about 20 ms.
+fn peak_gmacs(isa: evpose_core::kernels::Isa) -> Option<f64> {
+    let iters = 200_000;
+    (0..5)
+        .map(|_| {
+            let t = Instant::now();
+            let macs = evpose_core::kernels::peak_loop(isa, iters)?;
+            Some(macs as f64 / t.elapsed().as_secs_f64() / 1e9)
+        })
+        .try_fold(0.0f64, |best, g| g.map(|g| best.max(g)))
 }
 
 /// Runs `evpose bench infer`.
@@ -421,12 +438,16 @@ pub fn bench_infer(a: &BenchInferArgs) -> Result<()> {
     let model = evpose_core::Model::parse(fblob.bytes()).map_err(|e| anyhow::anyhow!("{e}"))?;
     let macs = model.macs_per_point() * n as u64 + model.macs_after_pooling();
     let tract_ms = median_ms(a.iterations, || tract.run(&input).map(|_| ()))?;
-    let f32_ms = median_ms(a.iterations, || {
-        model::run_core_f32(&fblob, &input).map(|_| ())
-    })?;
+    // Each engine is loaded once, then timed (as onnxruntime's session is created once): the
+    // core's blob checks and weight packing are not part of an inference.
+    let mut core_f32 = CoreRunner::new(&fblob)?;
+    let f32_ms = median_ms(a.iterations, || core_f32.run_f32(&input).map(|_| ()))?;
+    let mut core_i8 = CoreRunner::new(&qblob)?;
     let i8_ms = median_ms(a.iterations, || {
-        model::run_core_i8(&qblob, &input).map(|_| ())
+        core_i8.run_i8(model::kernels(), &input).map(|_| ())
     })?;
+    let peak = peak_gmacs(model::kernels().isa());
+    let i8_gmacs = macs as f64 / (i8_ms * 1e-3) / 1e9;
     let b = InferBench {
         points: n,
         macs,
@@ -435,8 +456,14 @@ pub fn bench_infer(a: &BenchInferArgs) -> Result<()> {
         core_i8_ms: i8_ms,
         speedup_i8_vs_tract: tract_ms / i8_ms,
         speedup_i8_vs_f32: f32_ms / i8_ms,
-        i8_gmacs: macs as f64 / (i8_ms * 1e-3) / 1e9,
-        kernels: model::kernels().name().into(),
+        i8_gmacs,
+        peak_gmacs: peak,
+        fraction_of_peak: peak.map(|p| i8_gmacs / p),
+        kernels: if core_i8.is_packed() && model::kernels().has_packed() {
+            format!("{}, packed weights", model::kernels().name())
+        } else {
+            model::kernels().name().into()
+        },
     };
     if a.json {
         println!("{}", serde_json::to_string_pretty(&b)?);
@@ -454,6 +481,12 @@ pub fn bench_infer(a: &BenchInferArgs) -> Result<()> {
             "  core  i8  {:>9.2} ms  ({:.2} GMAC/s, kernels: {})",
             b.core_i8_ms, b.i8_gmacs, b.kernels
         );
+        if let (Some(p), Some(f)) = (b.peak_gmacs, b.fraction_of_peak) {
+            println!(
+                "  int8 peak of this CPU, one thread: {p:.1} GMAC/s; core i8 runs at {:.1} %",
+                100.0 * f
+            );
+        }
         println!(
             "  core i8 is {:.2}x tract f32 and {:.2}x core f32",
             b.speedup_i8_vs_tract, b.speedup_i8_vs_f32

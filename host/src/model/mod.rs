@@ -10,7 +10,10 @@ use std::path::Path;
 
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use evpose_core::kernels::Kernels;
-use evpose_core::{run_f32, run_i8_with, scratch_words, scratch_words_for_block, Model};
+use evpose_core::{
+    pack_point_layers, packed_bytes, run_f32, run_i8_packed, run_i8_with, scratch_words,
+    scratch_words_for_block, DType, Model, PackedLayout,
+};
 use tract_core::internal::DimLike;
 use tract_onnx::prelude::*;
 use tract_onnx::tract_hir::infer::Factoid;
@@ -167,20 +170,34 @@ fn optimize(model: InferenceModel, n: usize) -> Result<std::sync::Arc<TypedSimpl
 
 /// A parsed model with its scratch memory, ready to run repeatedly (parsing checks the whole
 /// blob's CRC, so it happens once, at load).
+///
+/// For an int8 model on a CPU with a native packed kernel ([`Kernels::has_packed`]), the point
+/// layers' weights are also packed once, at load, as onnxruntime pre-packs at session creation;
+/// [`CoreRunner::run_i8`] then uses them with such kernels.
 pub struct CoreRunner<'b> {
     model: Model<'b>,
     scratch_f32: Vec<f32>,
     scratch_i32: Vec<i32>,
+    packed: Option<(PackedLayout, Vec<u8>)>,
 }
 
 impl<'b> CoreRunner<'b> {
-    /// Parses and validates a blob.
+    /// Parses and validates a blob, and packs an int8 model's point layers if this CPU's
+    /// kernels ([`kernels`]) have a packed kernel.
     pub fn new(blob: &'b AlignedBlob) -> Result<Self> {
         let model = Model::parse(blob.bytes()).map_err(|e| anyhow!("{e}"))?;
+        let packed = if model.dtype() == DType::I8 && kernels().has_packed() {
+            let mut buf = vec![0; packed_bytes(&model)];
+            let layout = pack_point_layers(&model, &mut buf).map_err(|e| anyhow!("{e}"))?;
+            Some((layout, buf))
+        } else {
+            None
+        };
         Ok(Self {
             scratch_f32: vec![0.0; scratch_words(&model)],
             scratch_i32: vec![0; scratch_words_for_block(&model, evpose_core::infer::MAX_BLOCK)],
             model,
+            packed,
         })
     }
 
@@ -212,19 +229,25 @@ impl<'b> CoreRunner<'b> {
         Ok(out)
     }
 
-    /// Runs the int8 engine with the given kernels; outputs are the heads' int32 accumulators.
+    /// Runs the int8 engine with the given kernels (over the packed weights when they exist
+    /// and `k` has a packed kernel); outputs are the heads' int32 accumulators.
     pub fn run_i8(&mut self, k: &Kernels, points: &[[f32; 5]]) -> Result<Logits<i32>> {
         let mut out = self.outputs();
-        run_i8_with(
-            k,
-            &self.model,
-            points,
-            &mut self.scratch_i32,
-            &mut out.x,
-            &mut out.y,
-        )
+        let (m, scratch) = (&self.model, &mut self.scratch_i32);
+        match &self.packed {
+            Some((layout, buf)) if k.has_packed() => {
+                run_i8_packed(k, m, (layout, buf), points, scratch, &mut out.x, &mut out.y)
+            }
+            _ => run_i8_with(k, m, points, scratch, &mut out.x, &mut out.y),
+        }
         .map_err(|e| anyhow!("{e}"))?;
         Ok(out)
+    }
+
+    /// Whether [`CoreRunner::run_i8`] with kernels that have a packed kernel uses packed
+    /// weights.
+    pub fn is_packed(&self) -> bool {
+        self.packed.is_some()
     }
 }
 

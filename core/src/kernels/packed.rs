@@ -1,0 +1,277 @@
+//! Pre-packed int8 weights for the panel kernels, and the reference kernel that defines them.
+//!
+//! A blob stores a layer's weights as `[out][in]` rows: what a matrix-vector kernel wants, and
+//! what an MCU runs. A wide SIMD kernel wants something else: `vpdpbusd` multiplies 64 unsigned
+//! bytes by 64 signed bytes and sums each group of four into one of 16 i32 lanes. With rows in
+//! the lanes, every output needs a horizontal sum at the end. Re-laid out so that the 16 lanes
+//! are 16 *outputs*, each lane holding four consecutive inputs of its output, one instruction
+//! computes four inputs of 16 outputs for a point whose four input bytes are broadcast, and the
+//! sums land in the output's own lane: no horizontal sums, one contiguous store per 16 outputs.
+//! This is what oneDNN and onnxruntime do when they "pre-pack" weights at session creation; the
+//! host packs once per model load ([`PackedI8::pack`] into a buffer the caller owns).
+//!
+//! # Layout
+//!
+//! Rows are taken [`GROUP_ROWS`] (64) at a time; the inputs four at a time (a *step*). For row
+//! group `g` and step `s`, one block of [`BLOCK_BYTES`] (256) bytes holds, at byte
+//! `(o mod 64)·4 + r`, the weight of row `o = 64g + (o mod 64)` and input `j = 4s + r`, stored as
+//! the unsigned byte `w + 128` (`w ^ 0x80`), the operand `vpdpbusd` wants unsigned. Blocks are
+//! ordered by group, then step: a kernel streams a group's blocks front to back. Rows past the
+//! last and inputs past `K` are padding, stored as `w = 0`.
+//!
+//! With weights offset by 128, a kernel computes `Σ (w + 128)·x = Σ w·x + 128·Σ x` and subtracts
+//! `128·Σ x` once per point (shared by every row). Everything is exact modulo 2^32 (each group of
+//! four products is at most 4 · 255 · 128 < 2^31 in magnitude), the residue the reference's
+//! wrapping sums give.
+
+/// Rows (outputs) per group: four 16-lane registers.
+pub const GROUP_ROWS: usize = 64;
+
+/// Inputs per step: the four bytes `vpdpbusd` sums into one lane.
+pub const STEP: usize = 4;
+
+/// Bytes of one block: one step of one row group.
+pub const BLOCK_BYTES: usize = GROUP_ROWS * STEP;
+
+/// One block of packed weights.
+pub type Block = [u8; BLOCK_BYTES];
+
+/// Bytes the packed form of a `rows × k` layer takes (whole blocks; 0 if either is 0).
+pub const fn packed_len(rows: usize, k: usize) -> usize {
+    rows.div_ceil(GROUP_ROWS) * k.div_ceil(STEP) * BLOCK_BYTES
+}
+
+/// A layer's int8 weights in the packed layout (see the [module docs](self)), borrowed from a
+/// buffer the caller owns. Built by [`PackedI8::pack`], so its size always matches its shape.
+#[derive(Clone, Copy, Debug)]
+pub struct PackedI8<'a> {
+    blocks: &'a [Block],
+    rows: usize,
+    k: usize,
+}
+
+impl<'a> PackedI8<'a> {
+    /// Packs the `[rows][k]` weights `w` into the front of `buf`, returning the packed view and
+    /// the unused rest of `buf`. `None` if `w.len() != rows · k`, `k == 0`, or `buf` holds fewer
+    /// than [`packed_len`]`(rows, k)` bytes.
+    pub fn pack(
+        w: &[i8],
+        rows: usize,
+        k: usize,
+        buf: &'a mut [u8],
+    ) -> Option<(Self, &'a mut [u8])> {
+        if k == 0 || rows.checked_mul(k) != Some(w.len()) || buf.len() < packed_len(rows, k) {
+            return None;
+        }
+        let (head, rest) = buf.split_at_mut(packed_len(rows, k));
+        let (blocks, _) = head.as_chunks_mut::<BLOCK_BYTES>();
+        let steps = k.div_ceil(STEP);
+        for (b, block) in blocks.iter_mut().enumerate() {
+            let (g, s) = (b / steps, b % steps);
+            for (i, lane) in block.as_chunks_mut::<STEP>().0.iter_mut().enumerate() {
+                for (r, byte) in lane.iter_mut().enumerate() {
+                    let (o, j) = (g * GROUP_ROWS + i, s * STEP + r);
+                    let v = if o < rows && j < k { w[o * k + j] } else { 0 };
+                    *byte = v as u8 ^ 0x80;
+                }
+            }
+        }
+        let blocks: &'a [Block] = blocks;
+        Some((Self { blocks, rows, k }, rest))
+    }
+
+    /// Views bytes already packed by [`PackedI8::pack`] for a `rows × k` layer (e.g. kept in a
+    /// buffer between calls). `None` unless `bytes` is exactly [`packed_len`]`(rows, k)` long
+    /// and `k > 0`. The bytes are not checked further: any bytes are some weights.
+    pub fn from_packed(bytes: &'a [u8], rows: usize, k: usize) -> Option<Self> {
+        if k == 0 || rows == 0 || bytes.len() != packed_len(rows, k) {
+            return None;
+        }
+        let (blocks, _) = bytes.as_chunks::<BLOCK_BYTES>();
+        Some(Self { blocks, rows, k })
+    }
+
+    /// Output rows.
+    pub const fn rows(&self) -> usize {
+        self.rows
+    }
+
+    /// Inputs per row (`K`).
+    pub const fn k(&self) -> usize {
+        self.k
+    }
+
+    /// Steps of [`STEP`] inputs per row group (the last one padded when `K` is not a multiple).
+    pub const fn steps(&self) -> usize {
+        self.k.div_ceil(STEP)
+    }
+
+    /// The blocks of row group `g` (`steps()` of them), or an empty slice past the last group.
+    pub fn group(&self, g: usize) -> &'a [Block] {
+        let steps = self.steps();
+        self.blocks.get(g * steps..(g + 1) * steps).unwrap_or(&[])
+    }
+
+    /// Row groups.
+    pub const fn groups(&self) -> usize {
+        self.rows.div_ceil(GROUP_ROWS)
+    }
+
+    /// Weight of row `o`, input `j` (`0` outside the matrix), read back from the packed bytes.
+    pub fn weight(&self, o: usize, j: usize) -> i8 {
+        if o >= self.rows || j >= self.k {
+            return 0;
+        }
+        let block = &self.group(o / GROUP_ROWS)[j / STEP];
+        (block[(o % GROUP_ROWS) * STEP + j % STEP] ^ 0x80) as i8
+    }
+}
+
+/// The packed int8 kernel's signature: `(w, x, x_stride, points, bias, out, out_stride)`,
+/// computing for `(P, O) =` [`packed_dims`]
+///
+/// `out[p·out_stride + o] = bias[o] + Σ_{j<K} w[o][j] · x[p·x_stride + j]` for `p < P`, `o < O`,
+///
+/// exact modulo 2^32, writing nothing else. Point rows may overlap or leave gaps in `x` (the
+/// engine passes its activation rows in place, each layer's inputs a slice of a wider row).
+pub type MatmatPackedI8 = fn(&PackedI8<'_>, &[i8], usize, usize, &[i32], &mut [i32], usize);
+
+/// `(P, O)`, the points and rows a [`MatmatPackedI8`] kernel computes.
+///
+/// `O = min(w.rows(), bias_len, out_stride)`. `P` is `points`, limited to the rows whose inputs
+/// lie inside `x` (`p·x_stride + K ≤ x_len`) and whose outputs lie inside `out`
+/// (`p·out_stride + O ≤ out_len`). `(0, 0)` when either is 0.
+pub const fn packed_dims(
+    w: &PackedI8<'_>,
+    x_len: usize,
+    x_stride: usize,
+    points: usize,
+    bias_len: usize,
+    out_len: usize,
+    out_stride: usize,
+) -> (usize, usize) {
+    let o = min(min(w.rows, bias_len), out_stride);
+    if o == 0 || x_len < w.k || out_len < o {
+        return (0, 0);
+    }
+    let fit_x = match (x_len - w.k).checked_div(x_stride) {
+        Some(n) => n + 1,
+        None => points,
+    };
+    // o ≥ 1 implies out_stride ≥ 1.
+    let fit_out = (out_len - o) / out_stride + 1;
+    let p = min(points, min(fit_x, fit_out));
+    (p, if p == 0 { 0 } else { o })
+}
+
+const fn min(a: usize, b: usize) -> usize {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// The specification of [`MatmatPackedI8`]: plain scalar loops over the packed bytes.
+pub fn matmat_packed_i8(
+    w: &PackedI8<'_>,
+    x: &[i8],
+    x_stride: usize,
+    points: usize,
+    bias: &[i32],
+    out: &mut [i32],
+    out_stride: usize,
+) {
+    let (points, rows) = packed_dims(
+        w,
+        x.len(),
+        x_stride,
+        points,
+        bias.len(),
+        out.len(),
+        out_stride,
+    );
+    for p in 0..points {
+        let x = &x[p * x_stride..][..w.k];
+        for (o, (y, &b)) in out[p * out_stride..][..rows]
+            .iter_mut()
+            .zip(bias)
+            .enumerate()
+        {
+            *y = x.iter().enumerate().fold(b, |acc, (j, &x)| {
+                acc.wrapping_add(i32::from(w.weight(o, j)) * i32::from(x))
+            });
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pack_round_trips_every_weight_and_pads_with_zero() {
+        for (rows, k) in [(1, 1), (3, 5), (64, 4), (65, 7), (130, 64)] {
+            let w: [i8; 130 * 64] = core::array::from_fn(|i| (i as i32 * 37 % 256 - 128) as i8);
+            let w = &w[..rows * k];
+            let mut buf = [0u8; 3 * 16 * BLOCK_BYTES];
+            let (p, rest) = PackedI8::pack(w, rows, k, &mut buf).unwrap();
+            assert_eq!(rest.len(), 3 * 16 * BLOCK_BYTES - packed_len(rows, k));
+            for o in 0..p.groups() * GROUP_ROWS {
+                for j in 0..p.steps() * STEP {
+                    let want = if o < rows && j < k { w[o * k + j] } else { 0 };
+                    assert_eq!(p.weight(o, j), want, "rows {rows} k {k} o {o} j {j}");
+                    let block = &p.group(o / GROUP_ROWS)[j / STEP];
+                    assert_eq!(block[(o % GROUP_ROWS) * STEP + j % STEP], want as u8 ^ 0x80);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn pack_rejects_wrong_shapes_and_short_buffers() {
+        let w = [1i8; 12];
+        let mut buf = [0u8; BLOCK_BYTES];
+        assert!(PackedI8::pack(&w, 3, 4, &mut buf).is_some());
+        assert!(PackedI8::pack(&w, 3, 5, &mut buf).is_none());
+        assert!(PackedI8::pack(&w, 0, 0, &mut buf).is_none());
+        assert!(PackedI8::pack(&w, 3, 4, &mut buf[..BLOCK_BYTES - 1]).is_none());
+        assert!(PackedI8::pack(&[1; 13 * 4], 13, 4, &mut [0; BLOCK_BYTES]).is_some());
+        assert!(PackedI8::pack(&[1; 65 * 4], 65, 4, &mut [0; BLOCK_BYTES]).is_none());
+        assert!(PackedI8::from_packed(&buf, 3, 4).is_some());
+        assert!(PackedI8::from_packed(&buf, 3, 5).is_none());
+        assert!(PackedI8::from_packed(&buf[1..], 3, 4).is_none());
+        assert!(PackedI8::from_packed(&buf, 0, 4).is_none());
+    }
+
+    #[test]
+    fn reference_matches_the_row_major_matvec() {
+        let (rows, k) = (70, 9);
+        let w: [i8; 70 * 9] = core::array::from_fn(|i| (i as i32 * 91 % 255 - 127) as i8);
+        let x: [i8; 3 * 11] = core::array::from_fn(|i| (i as i32 * 53 % 255 - 127) as i8);
+        let bias: [i32; 70] = core::array::from_fn(|i| i as i32 * 1000 - 7);
+        let mut buf = [0u8; 2 * 3 * BLOCK_BYTES];
+        let (p, _) = PackedI8::pack(&w, rows, k, &mut buf).unwrap();
+        let mut out = [-1; 3 * 72];
+        matmat_packed_i8(&p, &x, 11, 3, &bias, &mut out, 72);
+        for pt in 0..3 {
+            let mut want = [0; 70];
+            super::super::reference::matvec_i8(&w, &x[pt * 11..][..k], &bias, &mut want);
+            assert_eq!(out[pt * 72..][..70], want);
+            assert_eq!(out[pt * 72 + 70..][..2], [-1, -1]);
+        }
+    }
+
+    #[test]
+    fn dims_follow_the_buffers() {
+        let mut buf = [0u8; BLOCK_BYTES];
+        let (p, _) = PackedI8::pack(&[0; 8], 2, 4, &mut buf).unwrap();
+        assert_eq!(packed_dims(&p, 12, 4, 9, 2, 6, 2), (3, 2)); // x holds 3 rows
+        assert_eq!(packed_dims(&p, 12, 4, 2, 2, 6, 2), (2, 2)); // asked for 2
+        assert_eq!(packed_dims(&p, 12, 4, 9, 2, 5, 3), (2, 2)); // out holds 2 rows of 3
+        assert_eq!(packed_dims(&p, 12, 4, 9, 1, 6, 2), (3, 1)); // bias has 1 row
+        assert_eq!(packed_dims(&p, 4, 0, 5, 2, 10, 2), (5, 2)); // one shared x row
+        assert_eq!(packed_dims(&p, 3, 4, 9, 2, 6, 2), (0, 0)); // x shorter than K
+        assert_eq!(packed_dims(&p, 12, 4, 9, 2, 6, 0), (0, 0));
+    }
+}
