@@ -521,6 +521,18 @@ fn firmware_matches_the_host_core_under_qemu() {
         "the firmware reported an error:\n{text}"
     );
 
+    // The DSP kernels, on the real instructions, against the reference (boot self-test).
+    let selftest = lines
+        .iter()
+        .find(|l| l.starts_with("selftest:"))
+        .unwrap_or_else(|| panic!("no selftest line:\n{text}"));
+    assert_eq!(field::<String>(selftest, "kernels"), "armdsp", "{selftest}");
+    assert!(
+        field::<u32>(selftest, "cases") >= 71 * 9 + 256,
+        "{selftest}"
+    );
+    assert_eq!(field::<u32>(selftest, "mismatches"), 0, "{selftest}");
+
     let (_, events) = evs::decode(&std::fs::read(event_asset()).unwrap()).unwrap();
     let blob = AlignedBlob::new(&std::fs::read(model_asset()).unwrap());
     let host = host_windows(&events, blob.bytes());

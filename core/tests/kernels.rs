@@ -104,6 +104,12 @@ fn check_i8(w: &[i8], x: &[i8], bias: &[i32], out_len: usize) {
         want,
         "kernels::matvec_i8"
     );
+    // The Cortex-M DSP kernel, on emulated SXTB16/SMLAD here (the real ones run under QEMU).
+    assert_eq!(
+        run(kernels::arm::matvec_i8, w, x, bias, &out),
+        want,
+        "arm::matvec_i8 (emulated)"
+    );
 }
 
 /// Checks every kernel against the exact value modulo 2^32, and against the reference where
@@ -375,6 +381,11 @@ fn check_mm(w: &[i8], k: usize, x: &[i8], bias: &[i32], out_len: usize, stride: 
         run(&|o| kernels::matmat_i8(w, k, x, bias, o, stride)),
         want,
         "kernels::matmat_i8, {ctx}"
+    );
+    assert_eq!(
+        run(&|o| kernels::arm::matmat_i8(w, k, x, bias, o, stride)),
+        want,
+        "arm::matmat_i8 (emulated), {ctx}"
     );
     // The written rectangle is the one `matmat_dims` announces.
     let (np, no) = kernels::matmat_dims(k, w.len(), x.len(), bias.len(), out_len, stride);

@@ -18,6 +18,7 @@
 
 mod clock;
 mod input;
+mod selftest;
 mod stack;
 
 use cortex_m_rt::{entry, exception, ExceptionFrame};
@@ -135,6 +136,14 @@ fn main() -> ! {
     clock::start(cp.SYST);
     let per_tick = u64::from(clock::calibrate());
     println!("clock: instructions_per_tick={=u64}", per_tick);
+    let kernels = evpose_core::kernels::Kernels::best();
+    let check = selftest::kernels(&kernels);
+    println!(
+        "selftest: kernels={=str} cases={=u32} mismatches={=u32}",
+        kernels.name(),
+        check.cases,
+        check.mismatches
+    );
     let code = match run(per_tick) {
         Ok(()) => 0,
         Err(e) => {

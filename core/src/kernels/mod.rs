@@ -27,14 +27,14 @@
 //!
 //! # Cortex-M
 //!
-//! No Arm kernel yet; the reference is what the firmware runs. On `thumbv7em-none-eabihf`
-//! LLVM's ARMParallelDSP pass already turns the reference i16 loop into `SMLAD` (two 16-bit
-//! MACs per instruction). The int8 loop becomes `LDRSB`, `LDRSB`, `SMLABB` per MAC: `SMLAD`
-//! for int8 needs `SXTB16`, which plain Rust does not produce and whose intrinsics
-//! (`core::arch::arm::__sxtb16`, `__smlad`) are unstable; inline `asm!` would do, but stable
-//! Rust cannot see the DSP extension in `cfg(target_feature)`, so such a kernel needs an opt-in
-//! cargo feature (thumbv6m/v7m/v8m.base lack the instructions). Plain-Rust word loads with
-//! shifts cost more instructions than the reference (14 against 12 per four MACs).
+//! [`arm`] is CMSIS-NN's int8 step: `SXTB16` unpacks two int8 into two halfwords and `SMLAD`
+//! does two MACs per instruction. Its instructions are inline assembly, built with the `arm-dsp`
+//! cargo feature on `target_arch = "arm"` (stable Rust cannot see the DSP extension in
+//! `cfg(target_feature)` and the intrinsics are unstable; thumbv6m/v7m/v8m.base lack the
+//! instructions, so a firmware opts in), where [`Kernels::best`] picks it. Elsewhere the same
+//! kernel runs on emulated instructions, so its blocking and tails are tested on any host; the
+//! real instructions are tested on a Cortex-M7 under QEMU. The i16 first layer needs nothing:
+//! LLVM's ARMParallelDSP pass already turns the reference i16 loop into `SMLAD`.
 //!
 //! # Contract
 //!
@@ -67,6 +67,7 @@
 //! default `x86_64` build would otherwise get 128-bit SSE2 for them). IEEE arithmetic gives the
 //! same result in every lane, and the tests compare them with `==` anyway.
 
+pub mod arm;
 pub mod packed;
 pub mod reference;
 
@@ -160,19 +161,23 @@ pub enum Isa {
     X86Avx512Bw,
     /// x86_64 AVX-512 VNNI: `vpdpbusd`/`vpdpwssd`, 512-bit.
     X86Avx512Vnni,
+    /// Arm Cortex-M with the DSP extension: `SXTB16` + `SMLAD` ([`arm`]); built with the
+    /// `arm-dsp` feature on `target_arch = "arm"` only.
+    ArmDsp,
 }
 
 impl Isa {
     /// Every kernel family, on every target.
-    pub const ALL: [Isa; 5] = [
+    pub const ALL: [Isa; 6] = [
         Isa::Reference,
         Isa::X86Avx2,
         Isa::X86AvxVnni,
         Isa::X86Avx512Bw,
         Isa::X86Avx512Vnni,
+        Isa::ArmDsp,
     ];
 
-    /// A short name: `reference`, `avx2`, `avxvnni`, `avx512bw`, `avx512vnni`.
+    /// A short name: `reference`, `avx2`, `avxvnni`, `avx512bw`, `avx512vnni`, `armdsp`.
     pub const fn name(self) -> &'static str {
         match self {
             Isa::Reference => "reference",
@@ -180,6 +185,7 @@ impl Isa {
             Isa::X86AvxVnni => "avxvnni",
             Isa::X86Avx512Bw => "avx512bw",
             Isa::X86Avx512Vnni => "avx512vnni",
+            Isa::ArmDsp => "armdsp",
         }
     }
 
@@ -196,6 +202,8 @@ impl Isa {
             Isa::X86Avx2 | Isa::X86AvxVnni | Isa::X86Avx512Bw | Isa::X86Avx512Vnni => {
                 x86::kernels(self, x86::Features::detect())
             }
+            #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
+            Isa::ArmDsp => Some(arm::kernels()),
             #[allow(unreachable_patterns)]
             _ => None,
         }
@@ -252,8 +260,17 @@ impl Kernels {
     }
 
     /// The best kernels this build may use on any CPU it runs on, chosen from
-    /// `cfg(target_feature)` (so by `-C target-cpu`/`-C target-feature`); what [`matvec_i8`]
-    /// and [`matvec_i16`] call.
+    /// `cfg(target_feature)` (so by `-C target-cpu`/`-C target-feature`) and, on Arm, the
+    /// `arm-dsp` feature; what [`matvec_i8`] and [`matvec_i16`] call.
+    #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
+    pub const fn best() -> Self {
+        arm::kernels()
+    }
+
+    /// The best kernels this build may use on any CPU it runs on, chosen from
+    /// `cfg(target_feature)` (so by `-C target-cpu`/`-C target-feature`) and, on Arm, the
+    /// `arm-dsp` feature; what [`matvec_i8`] and [`matvec_i16`] call.
+    #[cfg(not(all(target_arch = "arm", feature = "arm-dsp")))]
     pub const fn best() -> Self {
         #[cfg(target_arch = "x86_64")]
         {

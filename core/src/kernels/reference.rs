@@ -17,13 +17,28 @@ pub fn matvec_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
 /// `K = k`) goes to `out[p·out_stride..][..O]`; `K = 0` gives `bias` (where [`matvec_i8`] would
 /// panic). Nothing else in `out` is written.
 pub fn matmat_i8(w: &[i8], k: usize, x: &[i8], bias: &[i32], out: &mut [i32], out_stride: usize) {
+    matmat_by_rows(matvec_i8, w, k, x, bias, out, out_stride);
+}
+
+/// [`matmat_i8`] with any matvec kernel called once per point: the shape rules of
+/// [`super::MatmatI8`] in one place, for the kernel sets that have no blocked kernel.
+#[inline(always)]
+pub fn matmat_by_rows(
+    matvec: impl Fn(&[i8], &[i8], &[i32], &mut [i32]),
+    w: &[i8],
+    k: usize,
+    x: &[i8],
+    bias: &[i32],
+    out: &mut [i32],
+    out_stride: usize,
+) {
     let (points, rows) = super::matmat_dims(k, w.len(), x.len(), bias.len(), out.len(), out_stride);
     for p in 0..points {
         let y = &mut out[p * out_stride..][..rows];
         if k == 0 {
             y.copy_from_slice(&bias[..rows]);
         } else {
-            matvec_i8(w, &x[p * k..][..k], bias, y);
+            matvec(w, &x[p * k..][..k], bias, y);
         }
     }
 }

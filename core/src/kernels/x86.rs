@@ -134,6 +134,7 @@ impl Features {
             Isa::X86AvxVnni => self.avxvnni,
             Isa::X86Avx512Bw => self.avx512bw,
             Isa::X86Avx512Vnni => self.avx512vnni,
+            Isa::ArmDsp => false,
         }
     }
 
