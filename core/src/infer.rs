@@ -12,7 +12,7 @@ use core::fmt;
 
 use crate::kernels::packed::{packed_len, PackedI8};
 use crate::kernels::{self, Kernels};
-use crate::model::{Bias, DType, LayerKind, Model, Weights, FEATURES};
+use crate::model::{Bias, DType, Layer, LayerKind, Model, Weights, FEATURES};
 use crate::quant::{self, InputCoding};
 
 /// Why an inference did not run.
@@ -247,30 +247,66 @@ pub fn run_f32_observed(
         *dst = s / n;
     }
     observe(Stage::Pooled, &a[..2 * pooled]);
-    let mut cur: (&mut [f32], &mut [f32]) = (a, b);
-    let mut width = 2 * pooled;
+    let feats = fc_chain(model, (a, b), 2 * pooled, |i, l, x, out| {
+        let (Weights::F32(w), Bias::F32(bias)) = (l.weights, l.bias) else {
+            return Err(InferError::DType);
+        };
+        kernels::matvec_f32(w, x, bias, out);
+        leaky_f32(out, l.desc.leaky);
+        observe(Stage::Fc(i), out);
+        Ok(())
+    })?;
+    heads(model, feats, out_x, out_y, |l, f, dst| {
+        let (Weights::F32(w), Bias::F32(bias)) = (l.weights, l.bias) else {
+            return Err(InferError::DType);
+        };
+        kernels::matvec_f32(w, f, bias, dst);
+        Ok(())
+    })
+}
+
+/// The FC layers after pooling, ping-ponging between `a` (which holds the first `width`
+/// features) and `b`: `layer(i, l, x, out)` computes FC layer `i` (counted from 0) from `x`
+/// into `out`. Returns the last layer's activations.
+fn fc_chain<'s, T>(
+    model: &Model<'_>,
+    (a, b): (&'s mut [T], &'s mut [T]),
+    width: usize,
+    mut layer: impl FnMut(usize, &Layer<'_>, &[T], &mut [T]) -> Result<(), InferError>,
+) -> Result<&'s [T], InferError> {
+    let (mut cur, mut width) = ((a, b), width);
     for i in model.fc_range() {
         let l = model.layer(i);
-        let (Weights::F32(w), Bias::F32(bias)) = (l.weights, l.bias) else {
-            return Err(InferError::DType);
-        };
-        let out = &mut cur.1[..l.desc.out_dim as usize];
-        kernels::matvec_f32(w, &cur.0[..width], bias, out);
-        leaky_f32(out, l.desc.leaky);
-        observe(Stage::Fc(i - model.point_layer_count()), out);
-        width = l.desc.out_dim as usize;
+        let out_dim = l.desc.out_dim as usize;
+        layer(
+            i - model.point_layer_count(),
+            &l,
+            &cur.0[..width],
+            &mut cur.1[..out_dim],
+        )?;
+        width = out_dim;
         cur = (cur.1, cur.0);
     }
-    let feats = &cur.0[..width];
+    Ok(&cur.0[..width])
+}
+
+/// The two SimDR heads, shared by all joints: `head(l, f, out)` runs head layer `l` on one
+/// joint's features `f` (`head_dim` of `feats`) into that joint's row of `out_x` or `out_y`.
+fn heads<T, O>(
+    model: &Model<'_>,
+    feats: &[T],
+    out_x: &mut [O],
+    out_y: &mut [O],
+    mut head: impl FnMut(&Layer<'_>, &[T], &mut [O]) -> Result<(), InferError>,
+) -> Result<(), InferError> {
     for (kind, out) in [(0, out_x), (1, out_y)] {
         let l = model.layer(model.head_x_index() + kind);
-        let (Weights::F32(w), Bias::F32(bias)) = (l.weights, l.bias) else {
-            return Err(InferError::DType);
-        };
-        let d = model.head_dim();
         let o = l.desc.out_dim as usize;
-        for (f, dst) in feats.chunks_exact(d).zip(out.chunks_exact_mut(o)) {
-            kernels::matvec_f32(w, f, bias, dst);
+        for (f, dst) in feats
+            .chunks_exact(model.head_dim())
+            .zip(out.chunks_exact_mut(o))
+        {
+            head(&l, f, dst)?;
         }
     }
     Ok(())
@@ -521,35 +557,22 @@ fn run_i8_impl(
     for (dst, &s) in a[pooled..2 * pooled].iter_mut().zip(sum.iter()) {
         *dst = quant::average(s, n, model.avg_scale());
     }
-    let mut cur: (&mut [i8], &mut [i8]) = (a, b);
-    let mut width = 2 * pooled;
-    for i in model.fc_range() {
-        let l = model.layer(i);
+    let feats = fc_chain(model, (a, b), 2 * pooled, |_, l, x, out| {
         let (Weights::I8(w), Bias::I32(bias)) = (l.weights, l.bias) else {
             return Err(InferError::DType);
         };
-        let out_dim = l.desc.out_dim as usize;
-        let acc = &mut acc[..out_dim];
-        k.matvec_i8(w, &cur.0[..width], bias, acc);
-        k.requantize_i8(acc, l.scales, l.desc.leaky, &mut cur.1[..out_dim]);
-        width = out_dim;
-        cur = (cur.1, cur.0);
-    }
-    let feats = &cur.0[..width];
-    for (kind, out) in [(0, out_x), (1, out_y)] {
-        let l = model.layer(model.head_x_index() + kind);
+        let acc = &mut acc[..out.len()];
+        k.matvec_i8(w, x, bias, acc);
+        k.requantize_i8(acc, l.scales, l.desc.leaky, out);
+        Ok(())
+    })?;
+    heads(model, feats, out_x, out_y, |l, f, dst| {
         let (Weights::I8(w), Bias::I32(bias)) = (l.weights, l.bias) else {
             return Err(InferError::DType);
         };
-        let o = l.desc.out_dim as usize;
-        for (f, dst) in feats
-            .chunks_exact(model.head_dim())
-            .zip(out.chunks_exact_mut(o))
-        {
-            k.matvec_i8(w, f, bias, dst);
-        }
-    }
-    Ok(())
+        k.matvec_i8(w, f, bias, dst);
+        Ok(())
+    })
 }
 
 /// Which kind of layer reads the pooled features (for reports).
