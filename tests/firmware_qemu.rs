@@ -19,7 +19,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use evpose_core::model::{CRC, FEATURES};
-use evpose_core::raster::{RasterParts, RasterStorage, Window};
+use evpose_core::raster::Window;
 use evpose_core::sample::{rng_from_seed, sample_window};
 use evpose_core::{
     decode, run_i8, scratch_words, Davis346Storage, Event, Joint2d, Model, Pushed, RasterConfig,
@@ -438,18 +438,6 @@ fn firmware_windows(lines: &[String]) -> Vec<(WindowResult, String)> {
     out
 }
 
-/// The rasterizer's storage on the heap: the firmware's `Davis346Storage`, boxed.
-struct BoxedStorage(Box<Davis346Storage>);
-
-impl RasterStorage for BoxedStorage {
-    fn parts(&mut self) -> RasterParts<'_> {
-        self.0.parts()
-    }
-    fn words(&self) -> (&[u64], &[u64]) {
-        self.0.words()
-    }
-}
-
 fn crc_points(w: &Window<'_>) -> u32 {
     let mut d = CRC.digest();
     for p in w.iter() {
@@ -475,11 +463,10 @@ fn crc_words<T: Copy>(values: impl IntoIterator<Item = T>, bytes: impl Fn(T) -> 
 fn host_windows(events: &[Event], blob: &[u8]) -> Vec<WindowResult> {
     let model = Model::parse(blob).unwrap();
     let (j, w, h) = (model.joints(), model.width(), model.height());
-    let mut raster = Rasterizer::new(
-        RasterConfig::DAVIS346,
-        BoxedStorage(Box::new(Davis346Storage::new())),
-    )
-    .unwrap();
+    // The firmware's storage type, on the heap (122 KiB) and borrowed, as the firmware
+    // borrows its `static`.
+    let mut storage = Box::new(Davis346Storage::new());
+    let mut raster = Rasterizer::new(RasterConfig::DAVIS346, &mut *storage).unwrap();
     let mut rng = rng_from_seed(SEED);
     let mut indices = vec![0u32; POINTS];
     let mut rows = vec![[0f32; FEATURES]; POINTS];

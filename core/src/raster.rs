@@ -171,6 +171,18 @@ pub trait RasterStorage {
     fn words(&self) -> (&[u64], &[u64]);
 }
 
+/// A borrowed storage is a storage: a rasterizer can run in a buffer that lives elsewhere (a
+/// `static` handed out once on an MCU, a heap box on the host), as `embedded_io` and
+/// `heapless` do for their traits.
+impl<S: RasterStorage + ?Sized> RasterStorage for &mut S {
+    fn parts(&mut self) -> RasterParts<'_> {
+        (**self).parts()
+    }
+    fn words(&self) -> (&[u64], &[u64]) {
+        (**self).words()
+    }
+}
+
 /// Mutable views of a [`RasterStorage`].
 pub struct RasterParts<'a> {
     /// Event buffer A: holds the window's events, then (with B) its points.

@@ -1,6 +1,6 @@
 //! Rasterizer behaviour: against a naive dense-grid reference, and every odd input case.
 
-use evpose_core::raster::{ConfigError, DropReason, InlineStorage, RasterStats};
+use evpose_core::raster::{ConfigError, DropReason, InlineStorage, RasterStats, RasterStorage};
 use evpose_core::{Event, Point, Pushed, RasterConfig, Rasterizer, WindowRule};
 use proptest::prelude::*;
 
@@ -64,7 +64,7 @@ fn events_strategy(max: usize) -> impl Strategy<Value = Vec<Event>> {
     )
 }
 
-fn window_of(r: &mut Rasterizer<Small>, events: &[Event]) -> Vec<Point> {
+fn window_of<S: RasterStorage>(r: &mut Rasterizer<S>, events: &[Event]) -> Vec<Point> {
     for &e in events {
         assert!(matches!(r.push(e), Pushed::Buffered));
     }
@@ -79,6 +79,22 @@ proptest! {
         let c = config(WindowRule::Events(64));
         let mut r = Rasterizer::new(c, Small::new()).unwrap();
         prop_assert_eq!(window_of(&mut r, &events), reference(&events, &c));
+    }
+
+    /// A rasterizer in borrowed storage (`&mut S`, e.g. a `static` on an MCU) works as in owned
+    /// storage, and the storage stays usable after it.
+    #[test]
+    fn borrowed_storage_rasterizes_like_owned(events in events_strategy(64)) {
+        let c = config(WindowRule::Events(64));
+        let mut storage = Small::new();
+        let mut borrowed = Rasterizer::new(c, &mut storage).unwrap();
+        for &e in &events {
+            prop_assert!(matches!(borrowed.push(e), Pushed::Buffered));
+        }
+        let got: Vec<Point> = borrowed.flush().iter().collect();
+        prop_assert_eq!(&got, &reference(&events, &c));
+        let mut again = Rasterizer::new(c, &mut storage).unwrap();
+        prop_assert_eq!(window_of(&mut again, &events), got);
     }
 
     /// Count windows cut the stream into consecutive chunks, each rasterized on its own.

@@ -25,7 +25,7 @@ use cortex_m_rt::{entry, exception, ExceptionFrame};
 use defmt::println;
 use defmt_semihosting as _;
 use evpose_core::model::{DType, ModelError, FEATURES};
-use evpose_core::raster::{ConfigError, RasterParts, RasterStorage, Window};
+use evpose_core::raster::{ConfigError, Window};
 use evpose_core::sample::{rng_from_seed, sample_window, BufferTooSmall, SampleRng};
 use evpose_core::simdr::ShapeError;
 use evpose_core::{
@@ -80,22 +80,10 @@ impl Buffers {
     }
 }
 
-// Zero-initialized, so both land in .bss; `take()` hands out the one `&'static mut`.
+// Zero-initialized, so both land in .bss; `take()` hands out the one `&'static mut` (the
+// rasterizer runs in the borrowed storage: a 122 KiB value must not pass through the stack).
 static RASTER: ConstStaticCell<Davis346Storage> = ConstStaticCell::new(Davis346Storage::new());
 static BUFFERS: ConstStaticCell<Buffers> = ConstStaticCell::new(Buffers::new());
-
-/// The rasterizer's storage, borrowed from its `static` (the rasterizer owns its storage, and
-/// a 122 KiB value must not pass through the stack).
-struct StaticStorage(&'static mut Davis346Storage);
-
-impl RasterStorage for StaticStorage {
-    fn parts(&mut self) -> RasterParts<'_> {
-        self.0.parts()
-    }
-    fn words(&self) -> (&[u64], &[u64]) {
-        self.0.words()
-    }
-}
 
 /// Why the pipeline stopped.
 #[derive(defmt::Format)]
@@ -211,7 +199,7 @@ fn run(per_tick: u64) -> Result<(), Error> {
         out_y,
         joints,
     } = BUFFERS.take();
-    let mut raster = Rasterizer::new(RasterConfig::DAVIS346, StaticStorage(RASTER.take()))?;
+    let mut raster = Rasterizer::new(RasterConfig::DAVIS346, RASTER.take())?;
     let mut source = EvsReader::new(&EVENTS[..])?;
     let h = *source.header();
     println!(
