@@ -12,7 +12,7 @@ use crate::kernels::Isa;
 /// `vpdpbusd`: 5 cycles × 2 per cycle on Zen 5), so the loop is throughput-bound.
 const CHAINS: usize = 12;
 
-/// Runs `iters` rounds of [`CHAINS`] independent multiply-accumulate instructions of `isa`'s
+/// Runs `iters` rounds of 12 (`CHAINS`) independent multiply-accumulate instructions of `isa`'s
 /// widest int8 step and returns the MACs done (`iters × CHAINS × MACs per instruction`); time
 /// it to get the peak. `None` for the reference or a family this CPU lacks.
 ///
