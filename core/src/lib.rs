@@ -16,6 +16,7 @@
 //! | inference | [`infer`] | f32 and int8 PointNet engines, fused per point, fixed scratch |
 //! | kernels | [`kernels`] | matrix kernels (row-major and packed weights), requantization, pooling: scalar reference and optimized versions |
 //! | decoding | [`simdr`] | SimDR labels and argmax decoding to 2-D joints |
+//! | triangulation | [`geometry`] | projection and two-view triangulation of joints to 3-D |
 //!
 //! Bad input never panics: it yields a typed error or a counted drop.
 //!
@@ -39,6 +40,7 @@
 #![warn(trivial_numeric_casts, unused_qualifications)]
 
 pub mod event;
+pub mod geometry;
 pub mod infer;
 pub mod kernels;
 pub mod model;

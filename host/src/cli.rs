@@ -11,6 +11,7 @@ use serde::Serialize;
 use crate::io::{self, Batch, CameraInfo, Format};
 
 pub mod budget;
+pub mod geometry;
 pub mod inference;
 use crate::npy;
 use crate::pipeline::{self, RasterOptions, VecStorage};
@@ -43,6 +44,8 @@ pub enum Command {
     Parity(inference::ParityArgs),
     /// Per-layer MACs and bytes of a model, and a firmware image's flash and RAM.
     Budget(budget::BudgetArgs),
+    /// Triangulate two DHP19 cameras' 2-D joints (`pose --json` outputs) to 3-D joints in mm.
+    Triangulate(geometry::TriangulateArgs),
     /// Measure throughput.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -175,6 +178,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Quantize(a) => inference::quantize(&a),
         Command::Parity(a) => inference::parity(&a),
         Command::Budget(a) => budget::budget(&a),
+        Command::Triangulate(a) => geometry::triangulate(&a),
     }
 }
 

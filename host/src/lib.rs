@@ -6,6 +6,7 @@
 #![deny(missing_docs)]
 
 pub mod cli;
+pub mod dhp19;
 pub mod io;
 pub mod model;
 pub mod npy;

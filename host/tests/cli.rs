@@ -445,3 +445,113 @@ fn infer_engines_write_their_outputs() {
     ])
     .contains("--threads 1"));
 }
+
+#[test]
+fn triangulate_pairs_pose_windows_from_two_cameras() {
+    use evpose_core::geometry::triangulate;
+    use evpose_host::dhp19;
+    let dir = dhp19::default_dir();
+    let (a, b) = (
+        dhp19::camera(&dir, 2).unwrap(),
+        dhp19::camera(&dir, 3).unwrap(),
+    );
+    // Two windows of 13 joints near the capture volume's origin, as `evpose pose --json` prints
+    // them (whole pixels); camera 3's file has one window more, which has no partner.
+    let truth = |w: usize, j: usize| [40.0 * j as f64 - 240.0, 100.0 * w as f64, 120.0 * j as f64];
+    let pixels = |cam: &evpose_core::geometry::Camera, w: usize| -> Vec<(u16, u16)> {
+        (0..13)
+            .map(|j| {
+                let (u, v) = cam.project(truth(w, j)).unwrap();
+                (u.round() as u16, v.round() as u16)
+            })
+            .collect()
+    };
+    let write = |name: &str, cam: &evpose_core::geometry::Camera, windows: usize| {
+        let path = tmp(name);
+        let lines: Vec<String> = (0..windows)
+            .map(|w| {
+                serde_json::json!({
+                    "window": w, "t_us": [w * 100, w * 100 + 99], "points": 2048,
+                    "joints": pixels(cam, w),
+                })
+                .to_string()
+            })
+            .collect();
+        std::fs::write(&path, lines.join("\n") + "\n").unwrap();
+        path
+    };
+    let (pa, pb) = (write("cam2.jsonl", &a, 2), write("cam3.jsonl", &b, 3));
+    let out = evpose(&["triangulate", s(&pa), s(&pb), "--json"]);
+    let lines: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 2, "{out}");
+    for (w, line) in lines.iter().enumerate() {
+        assert_eq!(line["window"], w);
+        let joints = line["joints"].as_array().unwrap();
+        assert_eq!(joints.len(), 13);
+        let (ja, jb) = (pixels(&a, w), pixels(&b, w));
+        for (j, got) in joints.iter().enumerate() {
+            let got: [f64; 3] = serde_json::from_value(got.clone()).unwrap();
+            let px = |p: (u16, u16)| (f64::from(p.0), f64::from(p.1));
+            // The library's result (to 1e-9 mm: serde_json's default float parsing may be off
+            // by an ulp) …
+            let want = triangulate(&a, px(ja[j]), &b, px(jb[j])).unwrap();
+            assert!(
+                (0..3).all(|i| (got[i] - want[i]).abs() < 1e-9),
+                "window {w} joint {j}: {got:?} vs {want:?}"
+            );
+            // … and within whole-pixel rounding of the true point (≤ 0.5 px ≈ a few mm).
+            let t = truth(w, j);
+            assert!(
+                (0..3).all(|i| (got[i] - t[i]).abs() < 30.0),
+                "{got:?} vs {t:?}"
+            );
+        }
+    }
+    // Text output: one line per window; the default cameras are the front pair, 2 and 3.
+    let text = evpose(&["triangulate", s(&pa), s(&pb), "--cameras", "2,3"]);
+    assert_eq!(text.lines().count(), 2, "{text}");
+    assert!(text.starts_with("window   0  joints mm ("), "{text}");
+
+    // Explicit joints; one camera twice gives parallel rays: `null`, with the reason on stderr.
+    let (ja, jb) = (pixels(&a, 0), pixels(&b, 0));
+    let list = |js: &[(u16, u16)]| {
+        js.iter()
+            .map(|(u, v)| format!("{u},{v}"))
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    let one = evpose(&[
+        "triangulate",
+        "--joints-a",
+        &list(&ja[..2]),
+        "--joints-b",
+        &list(&jb[..2]),
+        "--json",
+    ]);
+    let one: serde_json::Value = serde_json::from_str(&one).unwrap();
+    assert_eq!(one["window"], 0);
+    assert_eq!(
+        one["joints"].as_array().unwrap()[..],
+        lines[0]["joints"].as_array().unwrap()[..2]
+    );
+    let same = Command::new(env!("CARGO_BIN_EXE_evpose"))
+        .args(["triangulate", "--cameras", "2,2", "--json"])
+        .args(["--joints-a", "100,100", "--joints-b", "100,100"])
+        .output()
+        .unwrap();
+    assert!(same.status.success());
+    assert_eq!(
+        String::from_utf8_lossy(&same.stdout),
+        "{\"window\":0,\"joints\":[null]}\n"
+    );
+    assert!(String::from_utf8_lossy(&same.stderr).contains("parallel"));
+
+    // Bad input: a line that is not a pose, a channel DHP19 does not have.
+    let bad = tmp("bad.jsonl");
+    std::fs::write(&bad, "{\"joints\": [[1, 2]]}\n{\"window\": 1}\n").unwrap();
+    assert!(evpose_err(&["triangulate", s(&bad), s(&pb)]).contains("line 2"));
+    assert!(evpose_err(&["triangulate", s(&pa), s(&pb), "--cameras", "2,7"]).contains("0–3"));
+}

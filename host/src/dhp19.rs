@@ -1,0 +1,58 @@
+//! DHP19's camera calibration (Calabrese et al., CVPR Workshops 2019): the projection matrix and
+//! centre of each of its four DAVIS346 cameras, by aedat camera channel.
+//!
+//! DHP19's files number the cameras differently from the recordings' channels; its evaluation
+//! maps them as channel 0 → `P4.npy`, 1 → `P1.npy`, 2 → `P3.npy`, 3 → `P2.npy`, with the camera
+//! centres (mm) in rows 3, 0, 2, 1 of `camera_positions.npy`. The two front cameras, used for
+//! 3-D evaluation, are channels 2 and 3. The files are bundled in `assets/dhp19/` (float64).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use evpose_core::geometry::Camera;
+
+use crate::npy;
+
+/// Image width of a DHP19 camera (DAVIS346), pixels.
+pub const WIDTH: u16 = 346;
+/// Image height of a DHP19 camera (DAVIS346), pixels.
+pub const HEIGHT: u16 = 260;
+/// The aedat channels of the two front cameras, the pair DHP19 triangulates.
+pub const FRONT_CHANNELS: [u8; 2] = [2, 3];
+/// Per aedat channel (the index): the projection matrix file and the row of its centre in
+/// `camera_positions.npy`.
+pub const CALIBRATION: [(&str, usize); 4] =
+    [("P4.npy", 3), ("P1.npy", 0), ("P3.npy", 2), ("P2.npy", 1)];
+/// The camera centres' file: a (4, 3) array, mm.
+pub const POSITIONS: &str = "camera_positions.npy";
+
+/// The bundled calibration directory, `assets/dhp19/`.
+pub fn default_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/dhp19")
+}
+
+/// Loads the camera of aedat channel `channel` (0–3) from a directory holding DHP19's
+/// `P1..P4.npy` and `camera_positions.npy`.
+pub fn camera(dir: &Path, channel: u8) -> Result<Camera> {
+    let Some(&(file, row)) = CALIBRATION.get(usize::from(channel)) else {
+        bail!("DHP19 has camera channels 0–3, not {channel}");
+    };
+    let p = matrix::<3, 4>(&dir.join(file))?;
+    let centres = matrix::<4, 3>(&dir.join(POSITIONS))?;
+    Camera::new(p, centres[row], WIDTH, HEIGHT)
+        .with_context(|| format!("DHP19 camera channel {channel} ({file}, centre row {row})"))
+}
+
+/// Reads an `R × C` array of any numeric dtype as f64.
+fn matrix<const R: usize, const C: usize>(path: &Path) -> Result<[[f64; C]; R]> {
+    let (shape, data) = npy::read_f64(path)?;
+    if shape != [R as u64, C as u64] {
+        bail!(
+            "{}: expected a {R} × {C} array, found shape {shape:?}",
+            path.display()
+        );
+    }
+    Ok(std::array::from_fn(|r| {
+        std::array::from_fn(|c| data[r * C + c])
+    }))
+}
