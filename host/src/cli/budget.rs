@@ -96,6 +96,12 @@ pub struct ModelBudget {
     pub scratch_bytes: usize,
     /// Head outputs (`J × (W + H)` values of 4 bytes), lent by the caller.
     pub output_bytes: usize,
+    /// Scratch words of the int8 engine in blocks of `MAX_BLOCK` points (what the host lends:
+    /// fewer passes over the weights); `scratch_words` is the one-point minimum an MCU lends.
+    pub block_scratch_words: usize,
+    /// Bytes of the packed copy of the point layers' weights that a host with a native packed
+    /// kernel (x86 AVX-512 VNNI) makes at load (`evpose_core::packed_bytes`); 0 for f32.
+    pub packed_bytes: usize,
 }
 
 /// One section of an ELF image.
@@ -223,6 +229,8 @@ pub fn model_budget(m: &Model<'_>, points: u64) -> ModelBudget {
         scratch_words: scratch,
         scratch_bytes: 4 * scratch,
         output_bytes: 4 * m.joints() * (m.width() + m.height()),
+        block_scratch_words: evpose_core::scratch_words_for_block(m, evpose_core::infer::MAX_BLOCK),
+        packed_bytes: evpose_core::packed_bytes(m),
     }
 }
 
@@ -507,6 +515,14 @@ fn print_model(path: &Path, m: &ModelBudget) {
         m.weight_bytes, m.bias_scale_bytes, m.scratch_words, m.scratch_bytes, m.output_bytes
     );
     println!(
+        "host: scratch {} words ({} bytes) for blocks of {} points; packed weights {} bytes \
+         (x86 with AVX-512 VNNI)",
+        m.block_scratch_words,
+        4 * m.block_scratch_words,
+        evpose_core::infer::MAX_BLOCK,
+        m.packed_bytes
+    );
+    println!(
         "MACs: {} per point x {} points + {} after pooling = {} ({:.3} GMAC)",
         m.macs_per_point,
         m.points,
@@ -566,6 +582,24 @@ mod tests {
             "evpose_firmware::RASTER"
         );
         assert_eq!(demangle("__sbss"), "__sbss");
+    }
+
+    #[test]
+    fn bundled_model_budget_adds_up() {
+        let blob = crate::model::load_blob(&crate::cli::inference::default_model()).unwrap();
+        let m = Model::parse(blob.bytes()).unwrap();
+        let b = model_budget(&m, 2048);
+        assert_eq!(b.macs_total, 76_960 * 2048 + b.macs_after_pooling);
+        assert!(b.block_scratch_words > b.scratch_words);
+        // The packed copy holds every int8 point-layer weight, padded to whole 64 × 4 blocks
+        // (the small model's widths are multiples of 32: at most twice the rows), plus up to
+        // 63 bytes of alignment.
+        let point_i8: u64 = b.layers[1..m.point_layer_count()]
+            .iter()
+            .map(|l| l.weight_bytes)
+            .sum();
+        assert!(b.packed_bytes as u64 >= point_i8);
+        assert!(b.packed_bytes as u64 <= 2 * point_i8 + 63);
     }
 
     #[test]
