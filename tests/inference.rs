@@ -260,6 +260,7 @@ fn packed_int8_engine_gives_identical_integers_with_every_kernel_set_and_block()
     let m = Model::parse(blob.bytes()).unwrap();
     let mut buf = vec![0u8; packed_bytes(&m)];
     let layout = pack_point_layers(&m, &mut buf).unwrap();
+    let packed = layout.weights(&m, &buf).unwrap();
     let input = &case.inputs[4][..1000];
     let outputs = || (vec![0; 13 * 346], vec![0; 13 * 260]);
     let (mut wx, mut wy) = outputs();
@@ -278,7 +279,7 @@ fn packed_int8_engine_gives_identical_integers_with_every_kernel_set_and_block()
         for block in [1, 2, 5, 6, 7, 13, 24] {
             let (mut x, mut y) = outputs();
             let mut scratch = vec![0; scratch_words_for_block(&m, block)];
-            run_i8_packed(&k, &m, (&layout, &buf), input, &mut scratch, &mut x, &mut y).unwrap();
+            run_i8_packed(&k, &m, &packed, input, &mut scratch, &mut x, &mut y).unwrap();
             assert_eq!((&x, &y), (&wx, &wy), "{} block {block}", k.name());
         }
         tested.push(format!(
@@ -291,7 +292,7 @@ fn packed_int8_engine_gives_identical_integers_with_every_kernel_set_and_block()
 }
 
 #[test]
-fn packed_weights_of_another_model_or_a_short_buffer_are_errors() {
+fn packed_weights_of_another_model_or_in_another_buffer_are_errors() {
     use evpose_core::kernels::Kernels;
     use evpose_core::{
         pack_point_layers, packed_bytes, run_i8_packed, scratch_words, InferError, Model,
@@ -318,45 +319,32 @@ fn packed_weights_of_another_model_or_a_short_buffer_are_errors() {
     );
     let mut buf = vec![0u8; need];
     let layout = pack_point_layers(&ma, &mut buf).unwrap();
+    // The layout of model a, asked for model b.
+    assert_eq!(
+        layout.weights(&mb, &buf).unwrap_err(),
+        InferError::PackedModel
+    );
+    // Another buffer: shorter, or a copy of the right length (its contents could be anything).
+    assert_eq!(
+        layout.weights(&ma, &buf[..need / 2]).unwrap_err(),
+        InferError::PackedBuffer
+    );
+    let copy = buf.clone();
+    assert_eq!(
+        layout.weights(&ma, &copy).unwrap_err(),
+        InferError::PackedBuffer
+    );
+    // Weights of model a, run with model b.
+    let packed = layout.weights(&ma, &buf).unwrap();
     let (mut x, mut y) = (vec![0; 13 * 346], vec![0; 13 * 260]);
     let mut scratch = vec![0; scratch_words(&mb)];
     let input = &case.inputs[0][..10];
     let k = Kernels::detect();
     assert_eq!(
-        run_i8_packed(
-            &k,
-            &mb,
-            (&layout, &buf),
-            input,
-            &mut scratch,
-            &mut x,
-            &mut y
-        ),
+        run_i8_packed(&k, &mb, &packed, input, &mut scratch, &mut x, &mut y),
         Err(InferError::PackedModel)
     );
-    // The right model with a buffer that is not the packed one's length.
-    assert_eq!(
-        run_i8_packed(
-            &k,
-            &ma,
-            (&layout, &buf[..need / 2]),
-            input,
-            &mut scratch,
-            &mut x,
-            &mut y
-        ),
-        Err(InferError::PackedModel)
-    );
-    run_i8_packed(
-        &k,
-        &ma,
-        (&layout, &buf),
-        input,
-        &mut scratch,
-        &mut x,
-        &mut y,
-    )
-    .unwrap();
+    run_i8_packed(&k, &ma, &packed, input, &mut scratch, &mut x, &mut y).unwrap();
 }
 
 #[test]

@@ -86,7 +86,7 @@ fn matmat_i8(c: &mut Criterion) {
         }
         let best = Kernels::detect();
         if best.has_packed() {
-            let mut buf = vec![0u8; packed::packed_len(n, k)];
+            let mut buf = vec![0u8; packed::packed_len(n, k).expect("fits")];
             let (pw, _) = PackedI8::pack(&w, n, k, &mut buf).expect("pack");
             g.bench_function(format!("packed/{}", best.name()), |b| {
                 b.iter(|| best.matmat_packed_i8(&pw, black_box(&x), k, p, &bias, &mut out, n))

@@ -40,6 +40,8 @@ pub enum InferError {
     },
     /// The packed weights were packed from another model.
     PackedModel,
+    /// The packed weights are not in the buffer they were packed into.
+    PackedBuffer,
     /// An output buffer has the wrong length.
     Output {
         /// Values needed (`J × W` or `J × H`).
@@ -61,6 +63,12 @@ impl fmt::Display for InferError {
                 write!(f, "packed weights need {needed} bytes, got {got}")
             }
             Self::PackedModel => write!(f, "the packed weights belong to another model"),
+            Self::PackedBuffer => {
+                write!(
+                    f,
+                    "the packed weights are not in the buffer they were packed into"
+                )
+            }
             Self::Output { needed, got } => {
                 write!(f, "output needs {needed} values, got {got}")
             }
@@ -331,17 +339,18 @@ pub fn packed_bytes(model: &Model<'_>) -> usize {
     let packed: usize = (0..model.point_layer_count())
         .map(|i| model.layer(i))
         .filter(|l| matches!(l.weights, Weights::I8(_)))
-        .map(|l| packed_len(l.desc.out_dim as usize, l.desc.in_dim as usize))
-        .sum();
+        .map(|l| packed_len(l.desc.out_dim as usize, l.desc.in_dim as usize).unwrap_or(usize::MAX))
+        .fold(0usize, usize::saturating_add);
     if packed == 0 {
         0
     } else {
-        packed + PACK_ALIGN - 1
+        packed.saturating_add(PACK_ALIGN - 1)
     }
 }
 
 /// Where [`pack_point_layers`] put each int8 point layer's packed weights (see
-/// [`kernels::packed`]) in the caller's buffer; [`run_i8_packed`] reads them from there.
+/// [`kernels::packed`]) in the caller's buffer. Small and `Copy`: keep it next to the buffer,
+/// and get the weights back for [`run_i8_packed`] with [`PackedLayout::weights`].
 ///
 /// Packing is for CPUs with a native packed kernel ([`Kernels::has_packed`]: x86 AVX-512
 /// VNNI). It doubles the point layers' weight memory, so an MCU runs the blob's row-major
@@ -352,30 +361,63 @@ pub struct PackedLayout {
     layers: [(usize, usize); crate::model::MAX_POINT_LAYERS],
     /// The model's blob checksum, to refuse packed weights of another model.
     checksum: u32,
+    /// Address and length of the buffer packed into, to refuse any other buffer.
+    buffer: (usize, usize),
 }
 
 impl PackedLayout {
-    /// Point layer `i`'s packed weights in `buf`, if they are there and fit its shape.
-    fn layer<'a>(&self, i: usize, rows: usize, k: usize, buf: &'a [u8]) -> Option<PackedI8<'a>> {
-        let &(start, len) = self.layers.get(i)?;
-        PackedI8::from_packed(buf.get(start..start.checked_add(len)?)?, rows, k)
+    /// The packed weights of `model`, in `buf`, which must be the buffer (same address, same
+    /// length) they were packed into: [`InferError::PackedModel`] if the layout was made for
+    /// another model, [`InferError::PackedBuffer`] for another buffer. Cheap (slice checks).
+    pub fn weights<'b>(
+        &self,
+        model: &Model<'_>,
+        buf: &'b [u8],
+    ) -> Result<PackedWeights<'b>, InferError> {
+        if self.checksum != model.checksum() {
+            return Err(InferError::PackedModel);
+        }
+        if self.buffer != (buf.as_ptr() as usize, buf.len()) {
+            return Err(InferError::PackedBuffer);
+        }
+        let mut layers = [None; crate::model::MAX_POINT_LAYERS];
+        for (i, (slot, &(start, len))) in layers.iter_mut().zip(&self.layers).enumerate() {
+            if len > 0 {
+                let l = model.layer(i);
+                let bytes = buf.get(start..start.saturating_add(len));
+                let (rows, k) = (l.desc.out_dim as usize, l.desc.in_dim as usize);
+                *slot = Some(
+                    bytes
+                        .and_then(|b| PackedI8::from_packed(b, rows, k))
+                        .ok_or(InferError::PackedBuffer)?,
+                );
+            }
+        }
+        Ok(PackedWeights {
+            layers,
+            checksum: self.checksum,
+        })
     }
 }
 
+/// A model's packed point-layer weights, ready for [`run_i8_packed`] (from
+/// [`PackedLayout::weights`]).
+#[derive(Clone, Copy, Debug)]
+pub struct PackedWeights<'b> {
+    layers: [Option<PackedI8<'b>>; crate::model::MAX_POINT_LAYERS],
+    checksum: u32,
+}
+
 /// Packs `model`'s int8 point layers into `buf` (at least [`packed_bytes`] long) and says
-/// where they are; keep both for [`run_i8_packed`]. The i16 first layer is not packed (five
-/// inputs: nothing to gain). The weights start at a cache-line boundary of `buf`, so a buffer
-/// must not move between packing and use to keep that (a `Vec`'s heap buffer does not).
+/// where they are; keep `buf` where it is (a `Vec`'s heap buffer stays put when the `Vec`
+/// moves) and use [`PackedLayout::weights`] to run. The i16 first layer is not packed (five
+/// inputs: nothing to gain). The weights start at a cache-line boundary of `buf`.
 pub fn pack_point_layers(model: &Model<'_>, buf: &mut [u8]) -> Result<PackedLayout, InferError> {
-    let needed = packed_bytes(model);
-    if buf.len() < needed {
-        return Err(InferError::PackBuffer {
-            needed,
-            got: buf.len(),
-        });
+    let (needed, got) = (packed_bytes(model), buf.len());
+    if got < needed {
+        return Err(InferError::PackBuffer { needed, got });
     }
     let mut at = buf.as_ptr().align_offset(PACK_ALIGN).min(PACK_ALIGN - 1);
-    let got = buf.len();
     let mut layers = [(0, 0); crate::model::MAX_POINT_LAYERS];
     for (i, slot) in layers
         .iter_mut()
@@ -385,16 +427,18 @@ pub fn pack_point_layers(model: &Model<'_>, buf: &mut [u8]) -> Result<PackedLayo
         let l = model.layer(i);
         if let Weights::I8(w) = l.weights {
             let (rows, k) = (l.desc.out_dim as usize, l.desc.in_dim as usize);
-            let len = packed_len(rows, k);
-            PackedI8::pack(w, rows, k, &mut buf[at..])
+            let (packed, _) = buf
+                .get_mut(at..)
+                .and_then(|rest| PackedI8::pack(w, rows, k, rest))
                 .ok_or(InferError::PackBuffer { needed, got })?;
-            *slot = (at, len);
-            at += len;
+            *slot = (at, packed.byte_len());
+            at += packed.byte_len();
         }
     }
     Ok(PackedLayout {
         layers,
         checksum: model.checksum(),
+        buffer: (buf.as_ptr() as usize, got),
     })
 }
 
@@ -423,38 +467,28 @@ pub fn run_i8_with(
     run_i8_impl(k, model, None, points, scratch, out_x, out_y)
 }
 
-/// [`run_i8_with`] with the point layers' weights pre-packed ([`pack_point_layers`]) for
-/// [`Kernels::matmat_packed_i8`]: the same integers, faster where the table has a native
-/// packed kernel ([`Kernels::has_packed`]). `packed` is the layout and the buffer
-/// [`pack_point_layers`] filled.
-#[allow(clippy::too_many_arguments)]
+/// [`run_i8_with`] with the point layers' weights pre-packed ([`pack_point_layers`],
+/// [`PackedLayout::weights`]) for [`Kernels::matmat_packed_i8`]: the same integers, faster
+/// where the table has a native packed kernel ([`Kernels::has_packed`]).
 pub fn run_i8_packed(
     k: &Kernels,
     model: &Model<'_>,
-    (layout, packed): (&PackedLayout, &[u8]),
+    packed: &PackedWeights<'_>,
     points: &[[f32; FEATURES]],
     scratch: &mut [i32],
     out_x: &mut [i32],
     out_y: &mut [i32],
 ) -> Result<(), InferError> {
-    if layout.checksum != model.checksum() {
+    if packed.checksum != model.checksum() {
         return Err(InferError::PackedModel);
     }
-    run_i8_impl(
-        k,
-        model,
-        Some((layout, packed)),
-        points,
-        scratch,
-        out_x,
-        out_y,
-    )
+    run_i8_impl(k, model, Some(packed), points, scratch, out_x, out_y)
 }
 
 fn run_i8_impl(
     k: &Kernels,
     model: &Model<'_>,
-    packed: Option<(&PackedLayout, &[u8])>,
+    packed: Option<&PackedWeights<'_>>,
     points: &[[f32; FEATURES]],
     scratch: &mut [i32],
     out_x: &mut [i32],
@@ -513,7 +547,8 @@ fn run_i8_impl(
                     // them in place, rows `acts_len` apart.
                     let src = source_range(l.desc.sources, &offs);
                     let w = packed
-                        .and_then(|(layout, buf)| layout.layer(i, out_dim, src.len(), buf))
+                        .and_then(|p| p.layers[i])
+                        .filter(|w| w.rows() == out_dim && w.k() == src.len())
                         .ok_or(InferError::PackedModel)?;
                     k.matmat_packed_i8(&w, &acts[src.start..], acts_len, n, bias, acc, out_dim);
                 }

@@ -16,7 +16,7 @@
 //! | inference | [`infer`] | f32 and int8 PointNet engines, fused per point, fixed scratch |
 //! | kernels | [`kernels`] | matrix kernels (row-major and packed weights), requantization, pooling: scalar reference and optimized versions |
 //! | decoding | [`simdr`] | SimDR labels and argmax decoding to 2-D joints |
-//! | triangulation | [`geometry`] | projection and two-view triangulation of joints to 3-D |
+//! | triangulation | `geometry` | projection and two-view triangulation of joints to 3-D (feature `geometry`) |
 //!
 //! Bad input never panics: it yields a typed error or a counted drop.
 //!
@@ -40,6 +40,7 @@
 #![warn(trivial_numeric_casts, unused_qualifications)]
 
 pub mod event;
+#[cfg(feature = "geometry")]
 pub mod geometry;
 pub mod infer;
 pub mod kernels;
@@ -52,7 +53,7 @@ pub mod simdr;
 pub use event::Event;
 pub use infer::{
     pack_point_layers, packed_bytes, run_f32, run_f32_observed, run_i8, run_i8_packed, run_i8_with,
-    scratch_words, scratch_words_for_block, InferError, PackedLayout, Stage,
+    scratch_words, scratch_words_for_block, InferError, PackedLayout, PackedWeights, Stage,
 };
 pub use model::{DType, Model, ModelError};
 pub use raster::{

@@ -658,8 +658,13 @@ fn expected_packed(
             break;
         }
         let y = &mut o[p * out_stride..][..n];
-        let want = expected_i8(&w[..n * k], &x[p * x_stride..][..k], &bias[..n], y);
-        y.copy_from_slice(&want);
+        // The exact sum's residue modulo 2^32: bias near the i32 limits wraps.
+        for (y, e) in y
+            .iter_mut()
+            .zip(exact(&w[..n * k], &x[p * x_stride..][..k], bias, n))
+        {
+            *y = e as i32;
+        }
     }
     o
 }
@@ -678,7 +683,7 @@ fn check_packed(
     out_len: usize,
     out_stride: usize,
 ) {
-    let mut buf = vec![0u8; packed::packed_len(rows, k) + 5];
+    let mut buf = vec![0u8; packed::packed_len(rows, k).expect("fits") + 5];
     let (pw, rest) = PackedI8::pack(w, rows, k, &mut buf).expect("pack");
     assert_eq!(rest.len(), 5);
     let out = vec![0x5A5A_5A5A; out_len];
@@ -767,7 +772,7 @@ fn packed_shape(
                     prop::collection::vec(any_i8(), x_len),
                     Just(x_stride),
                     Just(points),
-                    prop::collection::vec(-(1i32 << 30)..(1 << 30), b_len),
+                    prop::collection::vec(near_limits_or_any(), b_len),
                     Just(out_len),
                     Just(out_stride),
                 )
@@ -775,8 +780,61 @@ fn packed_shape(
         )
 }
 
+/// Biases anywhere, or within 10^6 of `i32::MAX` or `i32::MIN`, so that sums wrap.
+fn near_limits_or_any() -> impl Strategy<Value = i32> + Clone {
+    prop_oneof![
+        any::<i32>(),
+        (i32::MAX - 1_000_000)..=i32::MAX,
+        i32::MIN..=(i32::MIN + 1_000_000),
+    ]
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(256))]
+
+    /// Sums that leave the i32 range wrap to the exact sum's residue modulo 2^32 in every
+    /// native int8 kernel and in the (emulated) Cortex-M DSP kernel: the reference's release
+    /// semantics (a debug build of the reference panics there instead, so it is not run).
+    #[test]
+    fn i8_kernels_wrap_modulo_2_32(
+        (k, n) in (1usize..300, 1usize..40),
+        seed in any::<u64>(),
+        bias in prop::collection::vec(near_limits_or_any(), 40),
+    ) {
+        let mut s = seed | 1;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            // Mostly extremes, so that the dot products are large.
+            match s % 4 { 0 => i8::MIN, 1 => i8::MAX, _ => (s >> 8) as i8 }
+        };
+        let w: Vec<i8> = (0..k * n).map(|_| next()).collect();
+        let x: Vec<i8> = (0..2 * k).map(|_| next()).collect();
+        let bias = &bias[..n];
+        for p in 0..2 {
+            let xp = &x[p * k..][..k];
+            let want: Vec<i32> = exact(&w, xp, bias, n).iter().map(|&e| e as i32).collect();
+            let mut got = vec![0; n];
+            kernels::arm::matvec_i8(&w, xp, bias, &mut got);
+            prop_assert_eq!(&got, &want, "arm (emulated)");
+            for kern in candidates() {
+                kern.matvec_i8(&w, xp, bias, &mut got);
+                prop_assert_eq!(&got, &want, "{} matvec", kern.name());
+            }
+        }
+        let want: Vec<i32> = x
+            .chunks_exact(k)
+            .flat_map(|xp| exact(&w, xp, bias, n))
+            .map(|e| e as i32)
+            .collect();
+        for kern in candidates() {
+            let mut got = vec![0; 2 * n];
+            kern.matmat_i8(&w, k, &x, bias, &mut got, n);
+            prop_assert_eq!(&got, &want, "{} matmat", kern.name());
+        }
+        // (The packed kernels get near-limit biases in `packed_shape`.)
+    }
 
     #[test]
     fn i8_packed_kernels_match_reference(
@@ -896,6 +954,8 @@ fn peak_loop_runs_every_family_this_cpu_has() {
         if let Some(m) = macs {
             // 1000 rounds of 12 instructions of 16 to 64 MACs each.
             assert!(m % 12_000 == 0 && (16..=64).contains(&(m / 12_000)), "{m}");
+            // A MAC count past u64 is refused before anything runs.
+            assert_eq!(kernels::peak_loop(isa, u64::MAX), None);
         }
     }
 }

@@ -31,7 +31,8 @@ impl Rng {
 
 /// Compares `k.matvec_i8` with the reference on every `K` in `0..=70` (every tail of a
 /// four-byte step) by every row count in `1..=9` (pairs and an odd row), random values with the
-/// extremes -128 and 127 mixed in, and then every one of the 256 × 256 int8 products.
+/// extremes -128 and 127 mixed in and biases near the i32 limits (sums that wrap; the release
+/// build's reference wraps too), and then every one of the 256 × 256 int8 products.
 pub fn kernels(k: &Kernels) -> Report {
     let mut rng = Rng(0x9E37_79B9);
     let mut report = Report {
@@ -63,7 +64,16 @@ pub fn kernels(k: &Kernels) -> Report {
             let mut bias = [0i32; MAX_ROWS];
             w.iter_mut().for_each(|v| *v = value(&mut rng));
             x.iter_mut().for_each(|v| *v = value(&mut rng));
-            bias.iter_mut().for_each(|v| *v = rng.next() as i32 >> 4);
+            // Every third bias within 2^20 of an i32 limit, so that sums wrap (SMLAD's
+            // overflow, which sets the Q flag, must still give the residue modulo 2^32).
+            bias.iter_mut().for_each(|v| {
+                let r = rng.next();
+                *v = match r % 3 {
+                    0 => i32::MAX - (r >> 12) as i32,
+                    1 => i32::MIN + (r >> 12) as i32,
+                    _ => r as i32,
+                }
+            });
             check(&w[..rows * kk], &x[..kk], &bias[..rows], rows);
         }
     }

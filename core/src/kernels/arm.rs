@@ -27,7 +27,9 @@ fn sxtb16(x: u32) -> u32 {
     {
         let r: u32;
         // SAFETY: SXTB16 reads and writes only the named registers, touches no memory and no
-        // flags; the `arm-dsp` feature promises the core has the DSP extension.
+        // flags. It exists on cores with the DSP extension, which the `arm-dsp` feature
+        // promises; on a target without it (thumbv6m, thumbv7m, thumbv8m.base) LLVM refuses
+        // to assemble the instruction, so a wrong promise fails the build, not the run.
         unsafe {
             core::arch::asm!("sxtb16 {r}, {x}", r = lateout(reg) r, x = in(reg) x,
                 options(pure, nomem, nostack, preserves_flags));
@@ -132,11 +134,15 @@ pub fn matvec_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
         }
         *y = [tail(a0, &w0[full..], xt), tail(a1, &w1[full..], xt)];
     }
-    if let (Some(y), Some(&b)) = (out_last.first_mut(), bias.get(n.wrapping_sub(1))) {
-        let acc = xs.iter().zip(last.as_chunks().0).fold(b, |a, (xv, wv)| {
-            let xw = word(xv);
-            step(a, wv, (sxtb16(xw), sxtb16_ror8(xw)))
-        });
+    if let [y] = out_last {
+        // An odd row count: the last row alone (`n ≥ 1` here, and `bias` holds `n` values).
+        let acc = xs
+            .iter()
+            .zip(last.as_chunks().0)
+            .fold(bias[n - 1], |a, (xv, wv)| {
+                let xw = word(xv);
+                step(a, wv, (sxtb16(xw), sxtb16_ror8(xw)))
+            });
         *y = tail(acc, &last[full..], xt);
     }
 }

@@ -10,8 +10,8 @@
 //!
 //! As in tract-linalg, the portable table always exists and native kernels override it:
 //!
-//! - [`Kernels`] is a table of one int8 and one i16 matvec kernel and one int8 matmat kernel
-//!   for one [`Isa`], with [`Kernels::reference`] (the portable fallback), [`Kernels::best`]
+//! - [`Kernels`] is a table for one [`Isa`]: int8 and i16 matvec, int8 matmat, the packed
+//!   int8 kernel where the ISA has one, and the requantization and pooling loops, with [`Kernels::reference`] (the portable fallback), [`Kernels::best`]
 //!   (chosen at compile time from `cfg(target_feature)`) and [`Kernels::detect`] (chosen at run
 //!   time: `cpuid` on x86_64, no `std` needed). A table can only be built for kernels the CPU
 //!   runs, so calling through it is safe.
@@ -23,7 +23,7 @@
 //!   [`Isa::kernels`], so tests and benchmarks run every kernel this CPU has.
 //!
 //! Kernel sets: [`reference`](mod@reference); on x86_64 (module `x86`) AVX2, AVX-VNNI,
-//! AVX-512BW and AVX-512 VNNI.
+//! AVX-512BW and AVX-512 VNNI; on Cortex-M with the `arm-dsp` feature, [`arm`].
 //!
 //! # Cortex-M
 //!
@@ -47,8 +47,8 @@
 //! [`matmat_i8`] is [`reference::matmat_i8`]: the reference matvec once per point, on the
 //! `points × rows` rectangle of [`matmat_dims`] (see [`MatmatI8`]). The x86 kernels compute it
 //! four output rows by up to four points at a time, so each weight vector loaded is used for
-//! several points and a layer's weights are streamed from memory once per 16 points instead of
-//! once per point.
+//! several points and a layer's weights are streamed from memory once per block of points (up
+//! to [`crate::infer::MAX_BLOCK`]) instead of once per point.
 //!
 //! # Packed weights
 //!
@@ -210,6 +210,16 @@ impl Isa {
     }
 }
 
+/// The x86 kernel sets, fastest first (measured with `benches/kernels.rs`), for
+/// [`Kernels::best`] and [`Kernels::detect`].
+#[cfg(target_arch = "x86_64")]
+const X86_FASTEST_FIRST: [Isa; 4] = [
+    Isa::X86Avx512Vnni,
+    Isa::X86Avx512Bw,
+    Isa::X86AvxVnni,
+    Isa::X86Avx2,
+];
+
 /// One int8 and one i16 matrix-vector kernel, one int8 matrix-matrix kernel, the packed
 /// kernel where the ISA has one, and the requantization and pooling loops, every one bit-exact
 /// with [`reference`](mod@reference).
@@ -261,7 +271,7 @@ impl Kernels {
 
     /// The best kernels this build may use on any CPU it runs on, chosen from
     /// `cfg(target_feature)` (so by `-C target-cpu`/`-C target-feature`) and, on Arm, the
-    /// `arm-dsp` feature; what [`matvec_i8`] and [`matvec_i16`] call.
+    /// `arm-dsp` feature; what [`matvec_i8`], [`matvec_i16`] and [`matmat_i8`] call.
     #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
     pub const fn best() -> Self {
         arm::kernels()
@@ -269,19 +279,13 @@ impl Kernels {
 
     /// The best kernels this build may use on any CPU it runs on, chosen from
     /// `cfg(target_feature)` (so by `-C target-cpu`/`-C target-feature`) and, on Arm, the
-    /// `arm-dsp` feature; what [`matvec_i8`] and [`matvec_i16`] call.
+    /// `arm-dsp` feature; what [`matvec_i8`], [`matvec_i16`] and [`matmat_i8`] call.
     #[cfg(not(all(target_arch = "arm", feature = "arm-dsp")))]
     pub const fn best() -> Self {
         #[cfg(target_arch = "x86_64")]
         {
             let f = x86::Features::compile_time();
-            // Fastest first (measured on Zen 4, `benches/kernels.rs`).
-            let order = [
-                Isa::X86Avx512Vnni,
-                Isa::X86Avx512Bw,
-                Isa::X86AvxVnni,
-                Isa::X86Avx2,
-            ];
+            let order = X86_FASTEST_FIRST;
             let mut i = 0;
             while i < order.len() {
                 if let Some(k) = x86::kernels(order[i], f) {
@@ -299,12 +303,7 @@ impl Kernels {
         #[cfg(target_arch = "x86_64")]
         {
             let f = x86::Features::detect();
-            for isa in [
-                Isa::X86Avx512Vnni,
-                Isa::X86Avx512Bw,
-                Isa::X86AvxVnni,
-                Isa::X86Avx2,
-            ] {
+            for isa in X86_FASTEST_FIRST {
                 if let Some(k) = x86::kernels(isa, f) {
                     return k;
                 }

@@ -36,9 +36,13 @@ pub const BLOCK_BYTES: usize = GROUP_ROWS * STEP;
 /// One block of packed weights.
 pub type Block = [u8; BLOCK_BYTES];
 
-/// Bytes the packed form of a `rows × k` layer takes (whole blocks; 0 if either is 0).
-pub const fn packed_len(rows: usize, k: usize) -> usize {
-    rows.div_ceil(GROUP_ROWS) * k.div_ceil(STEP) * BLOCK_BYTES
+/// Bytes the packed form of a `rows × k` layer takes (whole blocks; 0 if either is 0), or
+/// `None` if that does not fit in a `usize`.
+pub const fn packed_len(rows: usize, k: usize) -> Option<usize> {
+    match rows.div_ceil(GROUP_ROWS).checked_mul(k.div_ceil(STEP)) {
+        Some(blocks) => blocks.checked_mul(BLOCK_BYTES),
+        None => None,
+    }
 }
 
 /// A layer's int8 weights in the packed layout (see the [module docs](self)), borrowed from a
@@ -52,18 +56,19 @@ pub struct PackedI8<'a> {
 
 impl<'a> PackedI8<'a> {
     /// Packs the `[rows][k]` weights `w` into the front of `buf`, returning the packed view and
-    /// the unused rest of `buf`. `None` if `w.len() != rows · k`, `k == 0`, or `buf` holds fewer
-    /// than [`packed_len`]`(rows, k)` bytes.
+    /// the unused rest of `buf`. `None` if `rows == 0`, `k == 0`, `w.len() != rows · k`, or
+    /// `buf` holds fewer than [`packed_len`]`(rows, k)` bytes.
     pub fn pack(
         w: &[i8],
         rows: usize,
         k: usize,
         buf: &'a mut [u8],
     ) -> Option<(Self, &'a mut [u8])> {
-        if k == 0 || rows.checked_mul(k) != Some(w.len()) || buf.len() < packed_len(rows, k) {
+        if rows == 0 || k == 0 || rows.checked_mul(k) != Some(w.len()) {
             return None;
         }
-        let (head, rest) = buf.split_at_mut(packed_len(rows, k));
+        let len = packed_len(rows, k).filter(|&len| len <= buf.len())?;
+        let (head, rest) = buf.split_at_mut(len);
         let (blocks, _) = head.as_chunks_mut::<BLOCK_BYTES>();
         let steps = k.div_ceil(STEP);
         for (b, block) in blocks.iter_mut().enumerate() {
@@ -81,14 +86,20 @@ impl<'a> PackedI8<'a> {
     }
 
     /// Views bytes already packed by [`PackedI8::pack`] for a `rows × k` layer (e.g. kept in a
-    /// buffer between calls). `None` unless `bytes` is exactly [`packed_len`]`(rows, k)` long
-    /// and `k > 0`. The bytes are not checked further: any bytes are some weights.
+    /// buffer between calls). `None` unless `rows > 0`, `k > 0` and `bytes` is exactly
+    /// [`packed_len`]`(rows, k)` long. The bytes are not checked further: any bytes are some
+    /// weights.
     pub fn from_packed(bytes: &'a [u8], rows: usize, k: usize) -> Option<Self> {
-        if k == 0 || rows == 0 || bytes.len() != packed_len(rows, k) {
+        if k == 0 || rows == 0 || packed_len(rows, k) != Some(bytes.len()) {
             return None;
         }
         let (blocks, _) = bytes.as_chunks::<BLOCK_BYTES>();
         Some(Self { blocks, rows, k })
+    }
+
+    /// Bytes of the packed form ([`packed_len`] of its shape).
+    pub const fn byte_len(&self) -> usize {
+        self.blocks.len() * BLOCK_BYTES
     }
 
     /// Output rows.
@@ -216,7 +227,7 @@ mod tests {
             let w = &w[..rows * k];
             let mut buf = [0u8; 3 * 16 * BLOCK_BYTES];
             let (p, rest) = PackedI8::pack(w, rows, k, &mut buf).unwrap();
-            assert_eq!(rest.len(), 3 * 16 * BLOCK_BYTES - packed_len(rows, k));
+            assert_eq!(Some(3 * 16 * BLOCK_BYTES - rest.len()), packed_len(rows, k));
             for o in 0..p.groups() * GROUP_ROWS {
                 for j in 0..p.steps() * STEP {
                     let want = if o < rows && j < k { w[o * k + j] } else { 0 };
@@ -242,6 +253,11 @@ mod tests {
         assert!(PackedI8::from_packed(&buf, 3, 5).is_none());
         assert!(PackedI8::from_packed(&buf[1..], 3, 4).is_none());
         assert!(PackedI8::from_packed(&buf, 0, 4).is_none());
+        assert!(PackedI8::pack(&[], 0, 4, &mut buf).is_none());
+        // Shapes whose size overflows are refused, not wrapped.
+        assert_eq!(packed_len(usize::MAX, 4), None);
+        assert_eq!(packed_len(usize::MAX / 2, usize::MAX / 2), None);
+        assert!(PackedI8::from_packed(&buf, (1 << 62) + 1, 4).is_none());
     }
 
     #[test]

@@ -406,9 +406,11 @@ fn median_ms(iters: u32, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
     Ok(t[t.len() / 2])
 }
 
-/// GMAC/s of [`evpose_core::kernels::peak_loop`] for `isa`, best of 5 runs of about 20 ms.
+/// GMAC/s of [`evpose_core::kernels::peak_loop`] for `isa`, best of 5 runs of 120 M
+/// instructions each (about 15 ms at two per cycle and 4 GHz: long against the timer and the
+/// clock's ramp to its AVX-512 frequency).
 fn peak_gmacs(isa: evpose_core::kernels::Isa) -> Option<f64> {
-    let iters = 200_000;
+    let iters = 10_000_000;
     (0..5)
         .map(|_| {
             let t = Instant::now();

@@ -236,7 +236,8 @@ impl<'b> CoreRunner<'b> {
         let (m, scratch) = (&self.model, &mut self.scratch_i32);
         match &self.packed {
             Some((layout, buf)) if k.has_packed() => {
-                run_i8_packed(k, m, (layout, buf), points, scratch, &mut out.x, &mut out.y)
+                let packed = layout.weights(m, buf).map_err(|e| anyhow!("{e}"))?;
+                run_i8_packed(k, m, &packed, points, scratch, &mut out.x, &mut out.y)
             }
             _ => run_i8_with(k, m, points, scratch, &mut out.x, &mut out.y),
         }

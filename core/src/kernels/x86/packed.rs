@@ -119,10 +119,7 @@ impl Tile<'_> {
         for (s, block) in blocks.iter().enumerate() {
             let wv = load_block(block);
             for (a, xs) in acc.iter_mut().zip(&steps) {
-                let v = _mm512_set1_epi32(i32::from_le_bytes(xs[s].map(|b| b as u8)));
-                for (a, &w) in a.iter_mut().zip(&wv) {
-                    *a = _mm512_dpbusd_epi32(*a, w, v);
-                }
+                mac(a, &wv, xs[s].map(|b| b as u8));
             }
         }
         if let Some(block) = tail.first() {
@@ -133,10 +130,7 @@ impl Tile<'_> {
                 for (d, &b) in d.iter_mut().zip(&row[full * STEP..]) {
                     *d = b as u8;
                 }
-                let v = _mm512_set1_epi32(i32::from_le_bytes(d));
-                for (a, &w) in a.iter_mut().zip(&wv) {
-                    *a = _mm512_dpbusd_epi32(*a, w, v);
-                }
+                mac(a, &wv, d);
             }
         }
         for (i, (a, &c)) in acc.iter().zip(corr).enumerate() {
@@ -151,6 +145,17 @@ impl Tile<'_> {
                 st512m_i32(&mut y[lo..], _mm512_sub_epi32(_mm512_add_epi32(a, b), c));
             }
         }
+    }
+}
+
+/// One point's four input bytes, broadcast, times one block: `vpdpbusd` into each of the
+/// point's four accumulators (16 outputs × 4 inputs each).
+#[inline]
+#[target_feature(enable = "avx512f,avx512vnni")]
+fn mac(acc: &mut [__m512i; REGS], w: &[__m512i; REGS], inputs: [u8; STEP]) {
+    let v = _mm512_set1_epi32(i32::from_le_bytes(inputs));
+    for (a, &w) in acc.iter_mut().zip(w) {
+        *a = _mm512_dpbusd_epi32(*a, w, v);
     }
 }
 

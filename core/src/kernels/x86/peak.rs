@@ -14,7 +14,8 @@ const CHAINS: usize = 12;
 
 /// Runs `iters` rounds of 12 (`CHAINS`) independent multiply-accumulate instructions of `isa`'s
 /// widest int8 step and returns the MACs done (`iters × CHAINS × MACs per instruction`); time
-/// it to get the peak. `None` for the reference or a family this CPU lacks.
+/// it to get the peak. `None` for the reference, a family this CPU lacks, or a MAC count past
+/// `u64` (checked before running).
 ///
 /// | family | instruction | MACs |
 /// |---|---|---|
@@ -23,20 +24,27 @@ const CHAINS: usize = 12;
 /// | `avx512bw` | `vpmaddwd` + `vpaddd` zmm (int8 widened to i16) | 32 |
 /// | `avx2` | `vpmaddwd` + `vpaddd` ymm | 16 |
 pub fn peak_loop(isa: Isa, iters: u64) -> Option<u64> {
-    if isa == Isa::Reference || !Features::detect().supports(isa) {
+    let per_instruction = match isa {
+        Isa::X86Avx512Vnni => 64,
+        Isa::X86AvxVnni | Isa::X86Avx512Bw => 32,
+        Isa::X86Avx2 => 16,
+        _ => return None,
+    };
+    let macs = iters.checked_mul(CHAINS as u64 * per_instruction)?;
+    if !Features::detect().supports(isa) {
         return None;
     }
     // SAFETY: `detect` just confirmed the CPU has the features each function enables.
-    let (sink, macs) = unsafe {
+    let sink = unsafe {
         match isa {
-            Isa::X86Avx512Vnni => (vnni512(iters), 64),
-            Isa::X86AvxVnni => (vnni256(iters), 32),
-            Isa::X86Avx512Bw => (madd512(iters), 32),
-            _ => (madd256(iters), 16),
+            Isa::X86Avx512Vnni => vnni512(iters),
+            Isa::X86AvxVnni => vnni256(iters),
+            Isa::X86Avx512Bw => madd512(iters),
+            _ => madd256(iters),
         }
     };
     black_box(sink);
-    Some(iters * CHAINS as u64 * macs)
+    Some(macs)
 }
 
 /// One loop per instruction, sums reduced to one lane so nothing is dead code. The
