@@ -53,6 +53,14 @@ fn channels_map_to_the_dhp19_calibration_files() {
     }
     let err = dhp19::camera(&dir, 4).unwrap_err();
     assert!(err.to_string().contains("0–3"), "{err}");
+    // The calibration embedded in the binary is the same.
+    for channel in 0..4 {
+        assert_eq!(
+            dhp19::bundled_camera(channel).unwrap(),
+            dhp19::camera(&dir, channel).unwrap()
+        );
+    }
+    assert!(dhp19::bundled_camera(4).is_err());
 }
 
 #[test]

@@ -26,31 +26,64 @@ pub const CALIBRATION: [(&str, usize); 4] =
 /// The camera centres' file: a (4, 3) array, mm.
 pub const POSITIONS: &str = "camera_positions.npy";
 
-/// The bundled calibration directory, `assets/dhp19/`.
+/// The bundled calibration directory in a checkout, `assets/dhp19/`.
 pub fn default_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/dhp19")
 }
 
+/// The bundled calibration files, embedded in the binary so that an installed `evpose` needs
+/// no checkout (the same bytes as in [`default_dir`]).
+const BUNDLED: [(&str, &[u8]); 5] = [
+    ("P1.npy", include_bytes!("../../assets/dhp19/P1.npy")),
+    ("P2.npy", include_bytes!("../../assets/dhp19/P2.npy")),
+    ("P3.npy", include_bytes!("../../assets/dhp19/P3.npy")),
+    ("P4.npy", include_bytes!("../../assets/dhp19/P4.npy")),
+    (
+        POSITIONS,
+        include_bytes!("../../assets/dhp19/camera_positions.npy"),
+    ),
+];
+
 /// Loads the camera of aedat channel `channel` (0–3) from a directory holding DHP19's
 /// `P1..P4.npy` and `camera_positions.npy`.
 pub fn camera(dir: &Path, channel: u8) -> Result<Camera> {
+    camera_from(channel, |file| {
+        let path = dir.join(file);
+        let (shape, data) = npy::read_f64(&path)?;
+        Ok((path.display().to_string(), shape, data))
+    })
+}
+
+/// The camera of aedat channel `channel` (0–3) from the calibration embedded in the binary.
+pub fn bundled_camera(channel: u8) -> Result<Camera> {
+    camera_from(channel, |file| {
+        let &(_, bytes) = BUNDLED
+            .iter()
+            .find(|(name, _)| *name == file)
+            .context("not a bundled calibration file")?;
+        let (shape, values) = npy::stream_f64(bytes)?;
+        let data = values.collect::<std::io::Result<Vec<f64>>>()?;
+        Ok((format!("bundled {file}"), shape, data))
+    })
+}
+
+/// One array, read by name: `(where it came from, shape, values)`.
+type Array = (String, Vec<u64>, Vec<f64>);
+
+fn camera_from(channel: u8, read: impl Fn(&str) -> Result<Array>) -> Result<Camera> {
     let Some(&(file, row)) = CALIBRATION.get(usize::from(channel)) else {
         bail!("DHP19 has camera channels 0–3, not {channel}");
     };
-    let p = matrix::<3, 4>(&dir.join(file))?;
-    let centres = matrix::<4, 3>(&dir.join(POSITIONS))?;
+    let p = matrix::<3, 4>(read(file)?)?;
+    let centres = matrix::<4, 3>(read(POSITIONS)?)?;
     Camera::new(p, centres[row], WIDTH, HEIGHT)
         .with_context(|| format!("DHP19 camera channel {channel} ({file}, centre row {row})"))
 }
 
-/// Reads an `R × C` array of any numeric dtype as f64.
-fn matrix<const R: usize, const C: usize>(path: &Path) -> Result<[[f64; C]; R]> {
-    let (shape, data) = npy::read_f64(path)?;
+/// An `R × C` array of any numeric dtype, as f64.
+fn matrix<const R: usize, const C: usize>((source, shape, data): Array) -> Result<[[f64; C]; R]> {
     if shape != [R as u64, C as u64] {
-        bail!(
-            "{}: expected a {R} × {C} array, found shape {shape:?}",
-            path.display()
-        );
+        bail!("{source}: expected a {R} × {C} array, found shape {shape:?}");
     }
     Ok(std::array::from_fn(|r| {
         std::array::from_fn(|c| data[r * C + c])

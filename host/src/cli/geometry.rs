@@ -40,8 +40,8 @@ pub struct TriangulateArgs {
     /// the front pair, is DHP19's evaluation pair.
     #[arg(long, value_delimiter = ',', default_values_t = dhp19::FRONT_CHANNELS)]
     pub cameras: Vec<u8>,
-    /// Directory with DHP19's `P1..P4.npy` and `camera_positions.npy` (default: the bundled
-    /// `assets/dhp19`).
+    /// Directory with DHP19's `P1..P4.npy` and `camera_positions.npy` (default: the
+    /// calibration bundled in the binary, `assets/dhp19`).
     #[arg(long)]
     pub calibration: Option<PathBuf>,
     /// Print JSON lines instead of text.
@@ -67,12 +67,14 @@ struct PoseLine {
 
 /// Runs `evpose triangulate`.
 pub fn triangulate(a: &TriangulateArgs) -> Result<()> {
-    let dir = a.calibration.clone().unwrap_or_else(dhp19::default_dir);
     let [ca, cb] = a.cameras[..] else {
         bail!("--cameras takes two channels, got {:?}", a.cameras);
     };
-    let cam_a = dhp19::camera(&dir, ca)?;
-    let cam_b = dhp19::camera(&dir, cb)?;
+    let camera = |c| match &a.calibration {
+        Some(dir) => dhp19::camera(dir, c),
+        None => dhp19::bundled_camera(c),
+    };
+    let (cam_a, cam_b) = (camera(ca)?, camera(cb)?);
     let (views_a, views_b) = match (&a.joints_a, &a.joints_b, &a.poses[..]) {
         (Some(ja), Some(jb), _) => (
             vec![parse_joints(ja).context("--joints-a")?],

@@ -497,9 +497,16 @@ pub fn bench_infer(a: &BenchInferArgs) -> Result<()> {
     Ok(())
 }
 
-/// The bundled default model: the small reference network, quantized (`assets/`).
-pub fn default_model() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/pointnet-small.evq")
+/// The bundled default model, embedded in the binary (so an installed `evpose` needs no
+/// checkout): the small reference network, quantized, `assets/pointnet-small.evq`.
+pub const DEFAULT_MODEL: &[u8] = include_bytes!("../../../assets/pointnet-small.evq");
+
+/// [`DEFAULT_MODEL`], aligned and validated.
+pub fn default_blob() -> Result<AlignedBlob> {
+    let blob = AlignedBlob::new(DEFAULT_MODEL);
+    evpose_core::Model::parse(blob.bytes())
+        .map_err(|e| anyhow::anyhow!("bundled model (assets/pointnet-small.evq): {e}"))?;
+    Ok(blob)
 }
 
 /// Arguments of `evpose pose`.
@@ -538,8 +545,10 @@ pub struct WindowPose {
 
 /// Runs `evpose pose`: the whole pipeline on a recording.
 pub fn pose(a: &PoseArgs) -> Result<()> {
-    let path = a.model.clone().unwrap_or_else(default_model);
-    let blob = model::load_blob(&path)?;
+    let blob = match &a.model {
+        Some(path) => model::load_blob(path)?,
+        None => default_blob()?,
+    };
     let mut runner = CoreRunner::new(&blob)?;
     let int8 = runner.model().dtype() == evpose_core::DType::I8;
     let n = a.sampling.points.unwrap_or(2048);
