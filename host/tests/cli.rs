@@ -456,7 +456,8 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
         dhp19::camera(&dir, 3).unwrap(),
     );
     // Two windows of 13 joints near the capture volume's origin, as `evpose pose --json` prints
-    // them (whole pixels); camera 3's file has one window more, which has no partner.
+    // them (whole pixels). Camera 3's windows are cut at other times: it has one more, earlier
+    // window, so its window w + 1 is the one that covers camera 2's window w.
     let truth = |w: usize, j: usize| [40.0 * j as f64 - 240.0, 100.0 * w as f64, 120.0 * j as f64];
     let pixels = |cam: &evpose_core::geometry::Camera, w: usize| -> Vec<(u16, u16)> {
         (0..13)
@@ -466,13 +467,14 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
             })
             .collect()
     };
-    let write = |name: &str, cam: &evpose_core::geometry::Camera, windows: usize| {
+    let write = |name: &str, cam: &evpose_core::geometry::Camera, first: i64| {
         let path = tmp(name);
-        let lines: Vec<String> = (0..windows)
-            .map(|w| {
+        let lines: Vec<String> = (first..2)
+            .enumerate()
+            .map(|(i, w)| {
                 serde_json::json!({
-                    "window": w, "t_us": [w * 100, w * 100 + 99], "points": 2048,
-                    "joints": pixels(cam, w),
+                    "window": i, "t_us": [w * 100 + 10, w * 100 + 90], "points": 2048,
+                    "joints": pixels(cam, w.max(0) as usize),
                 })
                 .to_string()
             })
@@ -480,7 +482,7 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
         std::fs::write(&path, lines.join("\n") + "\n").unwrap();
         path
     };
-    let (pa, pb) = (write("cam2.jsonl", &a, 2), write("cam3.jsonl", &b, 3));
+    let (pa, pb) = (write("cam2.jsonl", &a, 0), write("cam3.jsonl", &b, -1));
     let out = evpose(&["triangulate", s(&pa), s(&pb), "--json"]);
     let lines: Vec<serde_json::Value> = out
         .lines()
@@ -489,6 +491,7 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
     assert_eq!(lines.len(), 2, "{out}");
     for (w, line) in lines.iter().enumerate() {
         assert_eq!(line["window"], w);
+        assert_eq!(line["window_b"], w + 1, "paired by time, not by position");
         let joints = line["joints"].as_array().unwrap();
         assert_eq!(joints.len(), 13);
         let (ja, jb) = (pixels(&a, w), pixels(&b, w));
@@ -513,7 +516,7 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
     // Text output: one line per window; the default cameras are the front pair, 2 and 3.
     let text = evpose(&["triangulate", s(&pa), s(&pb), "--cameras", "2,3"]);
     assert_eq!(text.lines().count(), 2, "{text}");
-    assert!(text.starts_with("window   0  joints mm ("), "{text}");
+    assert!(text.starts_with("window   0 +   1  joints mm ("), "{text}");
 
     // Explicit joints; one camera twice gives parallel rays: `null`, with the reason on stderr.
     let (ja, jb) = (pixels(&a, 0), pixels(&b, 0));
@@ -545,7 +548,7 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
     assert!(same.status.success());
     assert_eq!(
         String::from_utf8_lossy(&same.stdout),
-        "{\"window\":0,\"joints\":[null]}\n"
+        "{\"window\":0,\"window_b\":0,\"joints\":[null]}\n"
     );
     assert!(String::from_utf8_lossy(&same.stderr).contains("parallel"));
 

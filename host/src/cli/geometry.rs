@@ -1,8 +1,11 @@
 //! `evpose triangulate`: 3-D joints (mm) from the 2-D joints of two DHP19 cameras.
 //!
 //! The 2-D joints come from two JSON-lines outputs of `evpose pose --json`, one per camera
-//! (only each line's `joints`, `[[x, y], …]` in pixels, is read), paired window by window in
-//! file order; or from two explicit lists. Pixels are taken as DHP19's `(u, v)` (column, row
+//! (each line's `joints`, `[[x, y], …]` in pixels, and `t_us`, its first and last timestamp);
+//! or from two explicit lists. Each camera's windows are cut from its own events, so window `i`
+//! of one camera need not cover the same time as window `i` of the other: each window of the
+//! first file is paired with the window of the second whose time span overlaps it most (by
+//! position only when a file has no `t_us`). Pixels are taken as DHP19's `(u, v)` (column, row
 //! from the top-left), as the reference evaluation takes its decoded joints; each joint pair is
 //! triangulated with [`evpose_core::geometry::triangulate`].
 
@@ -21,7 +24,8 @@ use crate::dhp19;
 #[derive(Args, Debug)]
 pub struct TriangulateArgs {
     /// Two outputs of `evpose pose --json` (JSON lines), one per camera, in the order of
-    /// `--cameras`; windows are paired by their position in the files.
+    /// `--cameras`; each window of the first is paired with the window of the second whose
+    /// time span (`t_us`) overlaps it most (by position in the files when `t_us` is absent).
     #[arg(
         num_args = 2,
         value_names = ["POSES_A", "POSES_B"],
@@ -52,8 +56,10 @@ pub struct TriangulateArgs {
 /// One window's 3-D pose.
 #[derive(Clone, Debug, Serialize)]
 pub struct WindowPose3d {
-    /// Window index: the position of both input lines.
+    /// Window index: the position of the first camera's line.
     pub window: usize,
+    /// The second camera's window paired with it (the position of its line).
+    pub window_b: usize,
     /// Joints `[x, y, z]` in mm (DHP19's world frame), in the input's joint order; `null` for a
     /// joint that could not be triangulated (the reason goes to stderr).
     pub joints: Vec<Option<[f64; 3]>>,
@@ -63,6 +69,45 @@ pub struct WindowPose3d {
 #[derive(Deserialize)]
 struct PoseLine {
     joints: Vec<(f64, f64)>,
+    #[serde(default)]
+    t_us: Option<(i64, i64)>,
+}
+
+/// One camera's window: its 2-D joints and, from a pose file, its first and last timestamp.
+#[derive(Clone, Debug, PartialEq)]
+pub struct View {
+    /// Joints `(u, v)`, pixels.
+    pub joints: Vec<(f64, f64)>,
+    /// First and last event timestamp, µs.
+    pub t_us: Option<(i64, i64)>,
+}
+
+/// Pairs each window of `a` with a window of `b`: the one whose time span overlaps it most
+/// (ties: the first), none when no span overlaps; by position when either side lacks times.
+pub fn pair_windows(a: &[View], b: &[View]) -> Vec<(usize, Option<usize>)> {
+    let timed = a.iter().chain(b).all(|v| v.t_us.is_some());
+    a.iter()
+        .enumerate()
+        .map(|(i, va)| {
+            if !timed {
+                return (i, (i < b.len()).then_some(i));
+            }
+            let (a0, a1) = va.t_us.unwrap_or_default();
+            let overlap = |vb: &View| {
+                let (b0, b1) = vb.t_us.unwrap_or_default();
+                a1.min(b1) - a0.max(b0)
+            };
+            let best = b
+                .iter()
+                .enumerate()
+                .filter(|(_, vb)| overlap(vb) >= 0)
+                .fold(None, |best: Option<(usize, i64)>, (j, vb)| match best {
+                    Some((_, o)) if o >= overlap(vb) => best,
+                    _ => Some((j, overlap(vb))),
+                });
+            (i, best.map(|(j, _)| j))
+        })
+        .collect()
 }
 
 /// Runs `evpose triangulate`.
@@ -75,24 +120,23 @@ pub fn triangulate(a: &TriangulateArgs) -> Result<()> {
         None => dhp19::bundled_camera(c),
     };
     let (cam_a, cam_b) = (camera(ca)?, camera(cb)?);
+    let explicit = |text: &str, what: &str| -> Result<Vec<View>> {
+        let joints = parse_joints(text).with_context(|| what.to_owned())?;
+        Ok(vec![View { joints, t_us: None }])
+    };
     let (views_a, views_b) = match (&a.joints_a, &a.joints_b, &a.poses[..]) {
-        (Some(ja), Some(jb), _) => (
-            vec![parse_joints(ja).context("--joints-a")?],
-            vec![parse_joints(jb).context("--joints-b")?],
-        ),
+        (Some(ja), Some(jb), _) => (explicit(ja, "--joints-a")?, explicit(jb, "--joints-b")?),
         (_, _, [pa, pb]) => (read_poses(pa)?, read_poses(pb)?),
         _ => bail!("give two pose files, or --joints-a and --joints-b"),
     };
-    if views_a.len() != views_b.len() {
-        eprintln!(
-            "note: {} and {} windows; triangulating the first {}",
-            views_a.len(),
-            views_b.len(),
-            views_a.len().min(views_b.len())
-        );
-    }
-    for (window, (ja, jb)) in views_a.iter().zip(&views_b).enumerate() {
-        let pose = triangulate_window(&cam_a, ja, &cam_b, jb, window)?;
+    for (window, pair) in pair_windows(&views_a, &views_b) {
+        let Some(window_b) = pair else {
+            eprintln!("note: window {window} of the first camera has no partner; skipped");
+            continue;
+        };
+        let (ja, jb) = (&views_a[window].joints, &views_b[window_b].joints);
+        let mut pose = triangulate_window(&cam_a, ja, &cam_b, jb, window)?;
+        pose.window_b = window_b;
         if a.json {
             println!("{}", serde_json::to_string(&pose)?);
         } else {
@@ -121,7 +165,11 @@ pub fn triangulate_window(
                 .ok()
         })
         .collect();
-    Ok(WindowPose3d { window, joints })
+    Ok(WindowPose3d {
+        window,
+        window_b: window,
+        joints,
+    })
 }
 
 fn print_text(p: &WindowPose3d) {
@@ -133,11 +181,17 @@ fn print_text(p: &WindowPose3d) {
             None => "-".to_owned(),
         })
         .collect();
-    println!("window {:>3}  joints mm {}", p.window, js.join(" "));
+    println!(
+        "window {:>3} + {:>3}  joints mm {}",
+        p.window,
+        p.window_b,
+        js.join(" ")
+    );
 }
 
-/// Reads the `joints` of every line of an `evpose pose --json` output (blank lines skipped).
-pub fn read_poses(path: &Path) -> Result<Vec<Vec<(f64, f64)>>> {
+/// Reads the `joints` and `t_us` of every line of an `evpose pose --json` output (blank lines
+/// skipped).
+pub fn read_poses(path: &Path) -> Result<Vec<View>> {
     let file = File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
     let mut windows = Vec::new();
     for (i, line) in BufReader::new(file).lines().enumerate() {
@@ -152,7 +206,10 @@ pub fn read_poses(path: &Path) -> Result<Vec<Vec<(f64, f64)>>> {
                 i + 1
             )
         })?;
-        windows.push(pose.joints);
+        windows.push(View {
+            joints: pose.joints,
+            t_us: pose.t_us,
+        });
     }
     Ok(windows)
 }
@@ -178,6 +235,30 @@ pub fn parse_joints(text: &str) -> Result<Vec<(f64, f64)>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn windows_pair_by_time_overlap() {
+        let v = |t: Option<(i64, i64)>| View {
+            joints: vec![],
+            t_us: t,
+        };
+        // Camera B's windows are cut at other times: A's 100–199 overlaps B's 130–260 most.
+        let a = [v(Some((0, 99))), v(Some((100, 199))), v(Some((500, 600)))];
+        let b = [v(Some((0, 40))), v(Some((41, 129))), v(Some((130, 260)))];
+        assert_eq!(
+            pair_windows(&a, &b),
+            vec![(0, Some(1)), (1, Some(2)), (2, None)]
+        );
+        // Touching spans overlap (inclusive timestamps); ties go to the first.
+        let b = [v(Some((99, 99))), v(Some((99, 99)))];
+        assert_eq!(pair_windows(&a[..1], &b), vec![(0, Some(0))]);
+        // Without times, by position.
+        let a = [v(None), v(None), v(None)];
+        assert_eq!(
+            pair_windows(&a, &b),
+            vec![(0, Some(0)), (1, Some(1)), (2, None)]
+        );
+    }
 
     #[test]
     fn parses_joint_lists() {
