@@ -134,6 +134,11 @@ pub struct RasterArgs {
     /// Camera to rasterize from multi-camera recordings.
     #[arg(long, default_value_t = 0)]
     pub camera: u8,
+    /// Count --window-events over the events of all cameras, rasterizing only --camera's, so
+    /// that every camera gets the same windows (DHP19's 30,000-event windows over its four
+    /// cameras).
+    #[arg(long, requires = "window_events")]
+    pub all_camera_windows: bool,
     /// File format (default: detected from the header).
     #[arg(long, value_enum)]
     pub format: Option<Format>,
@@ -496,6 +501,7 @@ fn raster(a: &RasterArgs) -> Result<()> {
         slices: a.slices,
         window_events: a.window_events,
         camera: a.camera,
+        all_camera_windows: a.all_camera_windows,
     };
     let several = a.window_events.is_some();
     let mut paths = Vec::new();

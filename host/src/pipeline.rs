@@ -59,6 +59,11 @@ pub struct RasterOptions {
     pub window_events: Option<u32>,
     /// Camera to rasterize (multi-camera recordings); events of other cameras are skipped.
     pub camera: u8,
+    /// Count `window_events` over the events of every camera, rasterizing only `camera`'s
+    /// events of each window, so that every camera gets the same windows (DHP19's "Mean
+    /// Label" windows: 30,000 events over its four cameras). A window in which `camera` has no
+    /// event is an empty window. Without `window_events`, no effect.
+    pub all_camera_windows: bool,
 }
 
 impl Default for RasterOptions {
@@ -69,6 +74,7 @@ impl Default for RasterOptions {
             slices: evpose_core::raster::DEFAULT_SLICES,
             window_events: None,
             camera: 0,
+            all_camera_windows: false,
         }
     }
 }
@@ -139,35 +145,61 @@ pub fn rasterize(
     let mut batch = Batch::default();
     let mut selected = Vec::new();
     let mut windows = 0;
+    // With windows over all cameras: events of every camera in the open window, and the
+    // window length in events of every camera.
+    let shared = opts.window_events.filter(|_| opts.all_camera_windows);
+    let (mut in_window, mut closed_in_window) = (0u32, false);
     while reader
         .read_batch(&mut batch)
         .with_context(|| format!("{}", path.display()))?
     {
-        let events: &[evpose_core::Event] = if batch.cameras.iter().all(|&c| c == opts.camera) {
-            &batch.events
-        } else {
-            selected.clear();
-            selected.extend(
-                batch
-                    .events
-                    .iter()
-                    .zip(&batch.cameras)
-                    .filter(|(_, &c)| c == opts.camera)
-                    .map(|(e, _)| *e),
-            );
-            &selected
-        };
-        let mut rest = events;
-        while !rest.is_empty() {
-            let (used, window) = raster.extend(rest);
-            if let Some(w) = window {
-                on_window(windows, &w)?;
-                windows += 1;
+        let mut from = 0;
+        while from < batch.events.len() {
+            // The part of the batch inside the open window (all of it for per-camera windows).
+            let to = match shared {
+                Some(n) => batch.events.len().min(from + (n - in_window) as usize),
+                None => batch.events.len(),
+            };
+            let (part, cams) = (&batch.events[from..to], &batch.cameras[from..to]);
+            let events: &[evpose_core::Event] = if cams.iter().all(|&c| c == opts.camera) {
+                part
+            } else {
+                selected.clear();
+                selected.extend(
+                    part.iter()
+                        .zip(cams)
+                        .filter(|(_, &c)| c == opts.camera)
+                        .map(|(e, _)| *e),
+                );
+                &selected
+            };
+            let mut rest = events;
+            while !rest.is_empty() {
+                let (used, window) = raster.extend(rest);
+                if let Some(w) = window {
+                    on_window(windows, &w)?;
+                    windows += 1;
+                    closed_in_window = true;
+                }
+                rest = &rest[used..];
             }
-            rest = &rest[used..];
+            if let Some(n) = shared {
+                in_window += (to - from) as u32;
+                if in_window == n {
+                    // The window ends with the n-th event of all cameras. If this camera had
+                    // all n, its rasterizer closed it by count already; if it had none, the
+                    // window is empty (and still a window, so that cameras stay aligned).
+                    if !closed_in_window {
+                        on_window(windows, &raster.flush())?;
+                        windows += 1;
+                    }
+                    (in_window, closed_in_window) = (0, false);
+                }
+            }
+            from = to;
         }
     }
-    if raster.buffered() > 0 || windows == 0 {
+    if raster.buffered() > 0 || windows == 0 || (in_window > 0 && !closed_in_window) {
         on_window(windows, &raster.flush())?;
         windows += 1;
     }

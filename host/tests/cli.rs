@@ -558,3 +558,34 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
     assert!(evpose_err(&["triangulate", s(&bad), s(&pb)]).contains("line 2"));
     assert!(evpose_err(&["triangulate", s(&pa), s(&pb), "--cameras", "2,7"]).contains("0–3"));
 }
+
+#[test]
+fn pose_with_all_camera_windows_gives_every_camera_the_same_windows() {
+    // 4,000 events of a DHP19 recording, the first 1,000 all from camera 0: with windows of
+    // 1,000 events over all cameras, every camera gets 4 windows, camera 1's first one empty
+    // (an all-zero input: still a pose, so that the windows stay aligned).
+    let mut events = encoders::synthetic(4_000, 346, 260, 4, 1_000);
+    for e in &mut events[..1_000] {
+        e.cam = 0;
+    }
+    let path = tmp("dhp19-windows.aedat");
+    std::fs::write(&path, encoders::aedat2_davis346(&events, true)).unwrap();
+    let poses = |cam: &str, shared: bool| -> Vec<serde_json::Value> {
+        let mut args = vec!["pose", "--events", s(&path), "--camera", cam];
+        args.extend(["--window-events", "1000", "--json"]);
+        if shared {
+            args.push("--all-camera-windows");
+        }
+        evpose(&args)
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect()
+    };
+    for cam in ["0", "1", "2", "3"] {
+        let p = poses(cam, true);
+        assert_eq!(p.len(), 4, "camera {cam}");
+        assert_eq!(p[0]["points"] == 0, cam != "0", "camera {cam}: {}", p[0]);
+    }
+    // Per-camera windows (the default) cut camera 1's ~750 events into one window.
+    assert_eq!(poses("1", false).len(), 1);
+}

@@ -1138,3 +1138,69 @@ proptest! {
         let _ = decode_checked(Dec::Text, &bytes);
     }
 }
+
+#[test]
+fn all_camera_windows_give_every_camera_the_same_windows() {
+    use evpose_core::{RasterConfig, Rasterizer, WindowRule};
+    use evpose_host::pipeline::{rasterize, RasterOptions, VecStorage};
+    // A DHP19 recording: the first 1,000 events all from camera 0 (camera 1 has an empty first
+    // window, camera 0 a full one), then 5,500 over the four cameras; windows of 1,000 events
+    // of all cameras (the last one 500).
+    let n = 1_000;
+    let mut events = synthetic(6_500, 346, 260, 4, 1_000);
+    for e in &mut events[..n] {
+        e.cam = 0;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("dhp19.aedat");
+    std::fs::write(&path, aedat2_davis346(&events, true)).unwrap();
+    for cam in 0..4u8 {
+        let opts = RasterOptions {
+            window_events: Some(n as u32),
+            camera: cam,
+            all_camera_windows: true,
+            ..RasterOptions::default()
+        };
+        let mut got = Vec::new();
+        rasterize(&path, &opts, |i, w| {
+            got.push((i, w.summary().events, w.iter().collect::<Vec<_>>()));
+            Ok(())
+        })
+        .unwrap();
+        // Each window: this camera's events of the same 1,000 events of all cameras, alone
+        // through a rasterizer.
+        let want: Vec<_> = events
+            .chunks(n)
+            .enumerate()
+            .map(|(i, chunk)| {
+                let mine: Vec<Event> = chunk
+                    .iter()
+                    .filter(|e| e.cam == cam)
+                    .map(|e| Event::new(e.x, e.y, e.t, e.on))
+                    .collect();
+                let config = RasterConfig {
+                    window: WindowRule::Events(n as u32),
+                    ..RasterConfig::DAVIS346
+                };
+                let mut r = Rasterizer::new(config, VecStorage::new(n, &config)).unwrap();
+                let (used, closed) = r.extend(&mine);
+                assert_eq!(used, mine.len());
+                // A camera with all 1,000 events closes the window by count.
+                let closed = closed.map(|w| w.iter().collect::<Vec<_>>());
+                let points = closed.unwrap_or_else(|| r.flush().iter().collect());
+                (i, mine.len() as u32, points)
+            })
+            .collect();
+        let counts = |v: &[(usize, u32, Vec<_>)]| -> Vec<(usize, u32, usize)> {
+            v.iter().map(|(i, e, p)| (*i, *e, p.len())).collect()
+        };
+        assert_eq!(
+            counts(&got),
+            counts(&want),
+            "camera {cam}: (window, events, points)"
+        );
+        for (g, w) in got.iter().zip(&want) {
+            assert!(g.2 == w.2, "camera {cam} window {}: points differ", g.0);
+        }
+    }
+}

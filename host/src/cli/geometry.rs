@@ -48,6 +48,11 @@ pub struct TriangulateArgs {
     /// calibration bundled in the binary, `assets/dhp19`).
     #[arg(long)]
     pub calibration: Option<PathBuf>,
+    /// Pair windows by their position in the files instead of by time: for pose files made
+    /// with `--all-camera-windows`, where window `i` is the same stretch of the recording for
+    /// every camera.
+    #[arg(long)]
+    pub by_position: bool,
     /// Print JSON lines instead of text.
     #[arg(long)]
     pub json: bool,
@@ -83,9 +88,10 @@ pub struct View {
 }
 
 /// Pairs each window of `a` with a window of `b`: the one whose time span overlaps it most
-/// (ties: the first), none when no span overlaps; by position when either side lacks times.
-pub fn pair_windows(a: &[View], b: &[View]) -> Vec<(usize, Option<usize>)> {
-    let timed = a.iter().chain(b).all(|v| v.t_us.is_some());
+/// (ties: the first), none when no span overlaps; by position when asked or when either side
+/// lacks times.
+pub fn pair_windows(a: &[View], b: &[View], by_position: bool) -> Vec<(usize, Option<usize>)> {
+    let timed = !by_position && a.iter().chain(b).all(|v| v.t_us.is_some());
     a.iter()
         .enumerate()
         .map(|(i, va)| {
@@ -129,7 +135,7 @@ pub fn triangulate(a: &TriangulateArgs) -> Result<()> {
         (_, _, [pa, pb]) => (read_poses(pa)?, read_poses(pb)?),
         _ => bail!("give two pose files, or --joints-a and --joints-b"),
     };
-    for (window, pair) in pair_windows(&views_a, &views_b) {
+    for (window, pair) in pair_windows(&views_a, &views_b, a.by_position) {
         let Some(window_b) = pair else {
             eprintln!("note: window {window} of the first camera has no partner; skipped");
             continue;
@@ -246,16 +252,21 @@ mod tests {
         let a = [v(Some((0, 99))), v(Some((100, 199))), v(Some((500, 600)))];
         let b = [v(Some((0, 40))), v(Some((41, 129))), v(Some((130, 260)))];
         assert_eq!(
-            pair_windows(&a, &b),
+            pair_windows(&a, &b, false),
             vec![(0, Some(1)), (1, Some(2)), (2, None)]
+        );
+        // By position when asked.
+        assert_eq!(
+            pair_windows(&a, &b, true),
+            vec![(0, Some(0)), (1, Some(1)), (2, Some(2))]
         );
         // Touching spans overlap (inclusive timestamps); ties go to the first.
         let b = [v(Some((99, 99))), v(Some((99, 99)))];
-        assert_eq!(pair_windows(&a[..1], &b), vec![(0, Some(0))]);
+        assert_eq!(pair_windows(&a[..1], &b, false), vec![(0, Some(0))]);
         // Without times, by position.
         let a = [v(None), v(None), v(None)];
         assert_eq!(
-            pair_windows(&a, &b),
+            pair_windows(&a, &b, false),
             vec![(0, Some(0)), (1, Some(1)), (2, None)]
         );
     }

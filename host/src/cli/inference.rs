@@ -522,6 +522,11 @@ pub struct PoseArgs {
     /// Camera to use in multi-camera recordings.
     #[arg(long, default_value_t = 0)]
     pub camera: u8,
+    /// Count --window-events over the events of all cameras, using only --camera's, so that
+    /// every camera gets the same windows (DHP19's evaluation: `--window-events 30000`); a
+    /// window in which the camera has no event gives the joints of an all-zero input.
+    #[arg(long)]
+    pub all_camera_windows: bool,
     /// Print JSON lines (one object per window).
     #[arg(long)]
     pub json: bool,
@@ -556,6 +561,7 @@ pub fn pose(a: &PoseArgs) -> Result<()> {
     let opts = RasterOptions {
         window_events: Some(a.sampling.window_events),
         camera: a.camera,
+        all_camera_windows: a.all_camera_windows,
         ..RasterOptions::default()
     };
     let mut idx = Vec::new();
