@@ -426,38 +426,46 @@ impl<S: RasterStorage> Rasterizer<S> {
 
     /// The fast path of [`Rasterizer::extend`]: stores events into a filling window that
     /// already has its first event, stopping before any event that would close the window.
+    ///
+    /// Written for few live values: the buffer and the histogram are sliced to their bounds
+    /// first (no bounds checks in the loop), drops are counted from the consumed count
+    /// afterwards, and the time test is one unsigned compare (`scripts/callgrind-raster.sh`:
+    /// 188.6 → 165.6 instructions per event, rasterization included).
     fn fill(&mut self, events: &[Event]) -> usize {
         let limit = match self.config.window {
             WindowRule::Events(n) => (n as usize).min(self.capacity),
             WindowRule::Duration(_) => self.capacity,
         };
-        let duration = match self.config.window {
-            WindowRule::Duration(d) => i64::from(d),
-            WindowRule::Events(_) => i64::MAX,
+        // Offsets `d = t − t_first` the window takes: i32, and below the duration.
+        let end = match self.config.window {
+            WindowRule::Duration(d) => i64::from(d).min(1 << 31),
+            WindowRule::Events(_) => 1 << 31,
         };
+        let span = (end - i64::from(i32::MIN)) as u64;
         let (width, height, t_first) = (self.config.width, self.config.height, self.t_first);
-        let (mut len, mut lo, mut hi, mut t_last) =
-            (self.len, self.off_min, self.off_max, self.t_last);
-        let (mut dropped, mut backwards) = (0u64, 0u64);
+        let start = self.len;
+        let (mut lo, mut hi, mut t_last) = (self.off_min, self.off_max, self.t_last);
+        let mut backwards = 0u64;
         let parts = self.storage.parts();
-        let (a, hist_x) = (parts.a, parts.hist_x);
-        let mut used = 0;
-        for e in events {
-            if len + 1 >= limit {
-                break; // the closing event goes through push()
+        // The closing event (the `limit`-th) goes through push(): store up to `limit − 1`.
+        let a = &mut parts.a[..limit.saturating_sub(1).max(start)];
+        let hist_x = &mut parts.hist_x[..usize::from(width)];
+        let mut len = start;
+        let mut used = events.len();
+        for (i, e) in events.iter().enumerate() {
+            if len == a.len() {
+                used = i;
+                break;
             }
             if e.x >= width || e.y >= height {
-                dropped += 1;
-                used += 1;
-                continue;
+                continue; // dropped: counted below
             }
-            let Some(off) =
-                e.t.checked_sub(t_first)
-                    .filter(|&d| d < duration)
-                    .and_then(|d| i32::try_from(d).ok())
-            else {
-                break; // a time jump or the end of a duration window
-            };
+            let d = e.t.checked_sub(t_first).unwrap_or(i64::MIN);
+            if (d.wrapping_sub(i64::from(i32::MIN)) as u64) >= span {
+                used = i;
+                break; // a time jump or the end of a duration window: push() decides
+            }
+            let off = d as i32;
             backwards += u64::from(e.t < t_last);
             t_last = e.t;
             lo = lo.min(off);
@@ -468,10 +476,10 @@ impl<S: RasterStorage> Rasterizer<S> {
                 | u64::from(off as u32) << 32;
             hist_x[usize::from(e.x)] += 1;
             len += 1;
-            used += 1;
         }
-        self.stats.accepted += (len - self.len) as u64;
-        self.stats.dropped_out_of_range += dropped;
+        let accepted = len - start;
+        self.stats.accepted += accepted as u64;
+        self.stats.dropped_out_of_range += (used - accepted) as u64;
         self.stats.out_of_order += backwards;
         (self.len, self.off_min, self.off_max, self.t_last) = (len, lo, hi, t_last);
         used
@@ -667,8 +675,10 @@ fn assign_slices(
         let (k, frac) = if span > 0.0 {
             // Same operations, in the same order, as the reference (float64).
             let tn = (f64::from(off) - f64::from(off_min)) / span / SPAN_FACTOR * slices;
-            // tn >= 0, so truncation is floor; tn < K because of the 1.001 factor.
-            let k = (tn as u64).min(k_max);
+            // tn >= 0, so truncation is floor; tn < K because of the 1.001 factor. (A u32
+            // conversion, not u64: x86 has no direct f64 → u64 instruction before AVX-512, and
+            // every value here is below 256.)
+            let k = u64::from((tn as u32).min(k_max as u32));
             (k, (tn - k as f64) as f32)
         } else {
             (0, 0.0)
@@ -705,20 +715,21 @@ fn merge_cells(a: &mut [u64], b: &mut [u64], n: usize) -> usize {
     const CELL_MASK: u64 = X_MASK | Y_MASK << Y_SHIFT | K_MASK << K_SHIFT;
     let mut points = 0;
     let mut cell = a[0] & CELL_MASK;
-    let (mut cnt, mut p_acc, mut f_acc) = (0u32, 0i32, 0f32);
+    // ON events are counted; p_acc = ON − OFF = 2·ON − cnt at the end of each cell.
+    let (mut cnt, mut on, mut f_acc) = (0u32, 0u32, 0f32);
     for i in 0..n {
         let w = a[i];
         if w & CELL_MASK != cell {
-            write_point(a, b, points, cell, cnt, p_acc, f_acc);
+            write_point(a, b, points, cell, cnt, (2 * on) as i32 - cnt as i32, f_acc);
             points += 1;
             cell = w & CELL_MASK;
-            (cnt, p_acc, f_acc) = (0, 0, 0.0);
+            (cnt, on, f_acc) = (0, 0, 0.0);
         }
         cnt += 1;
-        p_acc += if w >> P_SHIFT & 1 == 1 { 1 } else { -1 };
+        on += ((w >> P_SHIFT) & 1) as u32;
         f_acc += f32::from_bits((w >> 32) as u32);
     }
-    write_point(a, b, points, cell, cnt, p_acc, f_acc);
+    write_point(a, b, points, cell, cnt, (2 * on) as i32 - cnt as i32, f_acc);
     points + 1
 }
 
