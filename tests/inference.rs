@@ -12,11 +12,10 @@
 
 use std::path::{Path, PathBuf};
 
-use evpose_core::simdr::argmax;
-use evpose_host::cli::inference::{argmax_agreement, parity_report};
+use evpose_host::cli::inference::argmax_agreement;
 use evpose_host::model::{self, quant, AlignedBlob, Logits, TractModel};
 use evpose_host::npy;
-use evpose_tests::{fixtures, shared, street_windows};
+use evpose_tests::{assert_close, assert_int8_core_equals_tract, fixtures, shared, street_windows};
 
 struct Case {
     model: PathBuf,
@@ -58,33 +57,6 @@ fn paper() -> Option<Case> {
     Some(load_case(&dir, "pointnet-paper.onnx", "input2048", "paper"))
 }
 
-/// max |Δ| ≤ 1e-4 · max|logit| and identical argmax, per output.
-fn assert_close(got: &Logits<f32>, want: &Logits<f32>, what: &str) {
-    for (g, w, n, axis) in [
-        (&got.x, &want.x, want.width(), "x"),
-        (&got.y, &want.y, want.height(), "y"),
-    ] {
-        assert_eq!(g.len(), w.len(), "{what} {axis}: shape");
-        let max_logit = w.iter().fold(0f32, |m, v| m.max(v.abs()));
-        let max_diff = g
-            .iter()
-            .zip(w.iter())
-            .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
-        assert!(
-            max_diff <= 1e-4 * max_logit,
-            "{what} {axis}: max|Δ| {max_diff} > 1e-4 · {max_logit}"
-        );
-        for j in 0..want.joints {
-            let r = j * n..(j + 1) * n;
-            assert_eq!(
-                argmax(&g[r.clone()]),
-                argmax(&w[r]),
-                "{what} {axis}: argmax of joint {j}"
-            );
-        }
-    }
-}
-
 fn check_float(case: &Case) {
     let blob = model::load_blob(&case.model).unwrap();
     let mut tract = TractModel::load(&case.model).unwrap();
@@ -104,16 +76,7 @@ fn check_float(case: &Case) {
 
 fn check_int8(case: &Case, tag: &str) {
     let net = model::import_onnx(&case.model).unwrap();
-    let ranges = quant::calibrate(&net, &case.inputs[..3]).unwrap();
-    let q = quant::quantize(&net, &ranges).unwrap();
-    let blob = AlignedBlob::new(&q.blob().unwrap());
-    let onnx = std::env::temp_dir().join(format!("evpose-{tag}-{}.q.onnx", std::process::id()));
-    std::fs::write(&onnx, q.onnx().unwrap()).unwrap();
-    let float = AlignedBlob::new(&model::f32_blob(&net).unwrap());
-    let r = parity_report(&blob, &onnx, &case.inputs, Some(&float)).unwrap();
-    assert_eq!(r.mismatches, 0, "{tag}: {r:?}");
-    assert_eq!(r.identical, case.inputs.len());
-    let (close, total) = r.within_1px.unwrap();
+    let (close, total) = assert_int8_core_equals_tract(&net, &case.inputs[..3], &case.inputs, tag);
     eprintln!("{tag}: int8 argmax within 1 px of float on {close}/{total} joint axes");
 }
 

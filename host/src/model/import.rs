@@ -179,6 +179,14 @@ impl Importer {
         if node.inputs.is_empty() {
             return Ok(Val::Feat(vec![0])); // the Source
         }
+        // Typing does not fold every node on constants only: tract wires a Gemm's bias (how
+        // PyTorch exports nn.Linear with its default bias on a 2-D input) as `Mul(beta, C)` of
+        // two constants. Such nodes are evaluated, by the op itself.
+        if ins.iter().all(|v| matches!(v, Val::Const(_))) {
+            if let Some(v) = fold(model, node, ins)? {
+                return Ok(v);
+            }
+        }
         if let Some(conv) = op.downcast_ref::<Conv>() {
             return self.conv(model, node, conv, ins);
         }
@@ -421,23 +429,34 @@ impl Importer {
             .as_concrete()
             .context("weight shape")?
             .to_vec();
-        ensure!(ws.len() == 2, "matmul weights must be 2-D (in, out)");
+        ensure!(ws.len() == 2, "matmul weights must be 2-D");
+        // A Linear without bias (and any Linear on a 3-D input) is exported as MatMul, weights
+        // stored (in, out). nn.Linear's default, with a bias, on a 2-D input is exported as
+        // Gemm(transB=1) instead, which tract types as an EinSum over weights stored (out, in)
+        // (`nk`) followed by an Add of the bias.
         let axes = e.axes.to_string();
-        ensure!(
-            matches!(
-                axes.as_str(),
-                "mk,kn->mn" | "amk,kn->amn" | "k,kn->n" | "ak,kn->an"
-            ),
-            "matmul of form {axes} is not a vector-matrix product"
-        );
-        let (in_dim, out_dim) = (ws[0], ws[1]);
-        // (in, out) → [out][in]
-        let mut wt = vec![0.0; w.len()];
-        for k in 0..in_dim {
-            for o in 0..out_dim {
-                wt[o * in_dim + k] = w[k * out_dim + o];
+        let transposed = match axes.as_str() {
+            "mk,kn->mn" | "amk,kn->amn" | "k,kn->n" | "ak,kn->an" => false,
+            "mk,nk->mn" | "amk,nk->amn" | "k,nk->n" | "ak,nk->an" => true,
+            _ => bail!("matmul of form {axes} is not a vector-matrix product"),
+        };
+        let (in_dim, out_dim) = if transposed {
+            (ws[1], ws[0])
+        } else {
+            (ws[0], ws[1])
+        };
+        // → [out][in]
+        let wt = if transposed {
+            w.to_vec()
+        } else {
+            let mut wt = vec![0.0; w.len()];
+            for k in 0..in_dim {
+                for o in 0..out_dim {
+                    wt[o * in_dim + k] = w[k * out_dim + o];
+                }
             }
-        }
+            wt
+        };
         let layer = Dense {
             in_dim,
             out_dim,
@@ -469,6 +488,31 @@ impl Importer {
         };
         Ok(Val::Lin(Pending { stage, layer }))
     }
+}
+
+/// Evaluates a node whose inputs are all constants; `None` if the op cannot be evaluated alone.
+fn fold(model: &TypedModel, node: &TypedNode, ins: &[&Val]) -> Result<Option<Val>> {
+    let inputs = node
+        .inputs
+        .iter()
+        .zip(ins)
+        .map(|(o, v)| {
+            let fact = model.outlet_fact(*o)?;
+            let shape = fact
+                .shape
+                .as_concrete()
+                .context("constant of unknown shape")?;
+            let t = Tensor::from_shape(shape, consts(v).unwrap_or_default())?;
+            Ok(t.cast_to_dt(fact.datum_type)?.into_owned().into_tvalue())
+        })
+        .collect::<Result<TVec<_>>>()?;
+    let Some(out) = node.op.eval_out_of_plan(inputs)? else {
+        return Ok(None);
+    };
+    let t = out[0].cast_to::<f32>()?;
+    Ok(Some(Val::Const(
+        t.try_as_plain_ram()?.as_slice::<f32>()?.to_vec(),
+    )))
 }
 
 /// A per-channel constant of length `n`, or a scalar repeated.
