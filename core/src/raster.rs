@@ -586,10 +586,15 @@ impl<S: RasterStorage> Rasterizer<S> {
 
     fn close(&mut self) {
         let n = self.len;
-        self.summary = WindowSummary {
-            events: n as u32,
-            t_min: self.t_first + i64::from(self.off_min),
-            t_max: self.t_first + i64::from(self.off_max),
+        // An empty window has no time extent (t_first and the offsets belong to an earlier one).
+        self.summary = if n == 0 {
+            WindowSummary::default()
+        } else {
+            WindowSummary {
+                events: n as u32,
+                t_min: self.t_first + i64::from(self.off_min),
+                t_max: self.t_first + i64::from(self.off_max),
+            }
         };
         let parts = self.storage.parts();
         let points = rasterize(&self.config, parts, n, self.off_min, self.off_max);
@@ -754,9 +759,9 @@ fn write_point(
 pub struct WindowSummary {
     /// Events in the window.
     pub events: u32,
-    /// Earliest timestamp, µs.
+    /// Earliest timestamp, µs (0 in an empty window).
     pub t_min: i64,
-    /// Latest timestamp, µs.
+    /// Latest timestamp, µs (0 in an empty window).
     pub t_max: i64,
 }
 

@@ -1,6 +1,8 @@
 //! Rasterizer behaviour: against a naive dense-grid reference, and every odd input case.
 
-use evpose_core::raster::{ConfigError, DropReason, InlineStorage, RasterStats, RasterStorage};
+use evpose_core::raster::{
+    ConfigError, DropReason, InlineStorage, RasterStats, RasterStorage, WindowSummary,
+};
 use evpose_core::{Event, Point, Pushed, RasterConfig, Rasterizer, WindowRule};
 use proptest::prelude::*;
 
@@ -263,6 +265,12 @@ fn empty_window_has_no_points() {
     assert!(w.is_empty());
     assert_eq!(w.summary().events, 0);
     assert_eq!(r.stats().windows, 1);
+    // After a window with events, an empty one still has no time extent (nothing stale).
+    for i in 0..8 {
+        r.push(Event::new(i, 0, 1_000 + i64::from(i), true));
+    }
+    assert_eq!(r.last_window().unwrap().summary().events, 8);
+    assert_eq!(r.flush().summary(), WindowSummary::default());
 }
 
 #[test]

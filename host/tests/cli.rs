@@ -585,6 +585,8 @@ fn pose_with_all_camera_windows_gives_every_camera_the_same_windows() {
         let p = poses(cam, true);
         assert_eq!(p.len(), 4, "camera {cam}");
         assert_eq!(p[0]["points"] == 0, cam != "0", "camera {cam}: {}", p[0]);
+        // An empty window has no time span.
+        assert_eq!(p[0]["t_us"].is_null(), cam != "0", "camera {cam}: {}", p[0]);
     }
     // Per-camera windows (the default) cut camera 1's ~750 events into one window.
     assert_eq!(poses("1", false).len(), 1);

@@ -540,8 +540,8 @@ pub struct PoseArgs {
 pub struct WindowPose {
     /// Window index.
     pub window: usize,
-    /// First and last timestamp, µs.
-    pub t_us: (i64, i64),
+    /// First and last timestamp, µs; `None` (JSON `null`) for a window without events.
+    pub t_us: Option<(i64, i64)>,
     /// Points in the rasterized window.
     pub points: usize,
     /// Joints `(x, y)` in pixels, in the model's joint order.
@@ -583,7 +583,7 @@ pub fn pose(a: &PoseArgs) -> Result<()> {
         let s = w.summary();
         let p = WindowPose {
             window: i,
-            t_us: (s.t_min, s.t_max),
+            t_us: (s.events > 0).then_some((s.t_min, s.t_max)),
             points: w.len(),
             joints: joints.iter().map(|j| (j.x, j.y)).collect(),
         };
