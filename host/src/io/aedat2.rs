@@ -61,9 +61,7 @@ use std::io::Read;
 use evpose_core::Event;
 
 use super::source::{known_sensor_size, out_of_sensor, time_overflow, Source, Unwrapper};
-use super::{
-    Batch, CameraInfo, EventReader, Format, ReadError, ReadNotes, StreamInfo, BATCH_EVENTS,
-};
+use super::{Batch, CameraInfo, Format, ReadError, ReadNotes, StreamInfo, BATCH_EVENTS};
 
 /// Bytes per record.
 pub const RECORD_BYTES: usize = 8;
@@ -407,25 +405,16 @@ impl Decoder<'_> {
     }
 }
 
-impl<R: Read> EventReader for Aedat2Reader<R> {
+impl<R: Read> super::source::Fill for Aedat2Reader<R> {
     fn info(&self) -> &StreamInfo {
         &self.info
     }
-
-    /// Fills `batch` with up to [`BATCH_EVENTS`] events. After an error the reader is finished.
-    fn read_batch(&mut self, batch: &mut Batch) -> Result<bool, ReadError> {
-        super::source::read_batch_guarded(self, batch)
-    }
-
     fn notes(&self) -> ReadNotes {
         ReadNotes {
             timestamp_wraps: self.time.wraps(),
             ..self.notes.clone()
         }
     }
-}
-
-impl<R: Read> super::source::Fill for Aedat2Reader<R> {
     fn fill_batch(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
         self.fill(batch)
     }

@@ -39,9 +39,7 @@ use std::io::Read;
 use evpose_core::Event;
 
 use super::source::{known_sensor_size, out_of_sensor, Source};
-use super::{
-    Batch, CameraInfo, EventReader, Format, ReadError, ReadNotes, StreamInfo, BATCH_EVENTS,
-};
+use super::{Batch, CameraInfo, Format, ReadError, ReadNotes, StreamInfo, BATCH_EVENTS};
 
 /// Bytes of a packet header.
 pub const PACKET_HEADER_BYTES: usize = 28;
@@ -384,22 +382,13 @@ fn read_header<R: Read>(src: &mut Source<R>) -> Result<Vec<(i16, String)>, ReadE
     }
 }
 
-impl<R: Read> EventReader for Aedat3Reader<R> {
+impl<R: Read> super::source::Fill for Aedat3Reader<R> {
     fn info(&self) -> &StreamInfo {
         &self.info
     }
-
-    /// Fills `batch` with up to [`BATCH_EVENTS`] events. After an error the reader is finished.
-    fn read_batch(&mut self, batch: &mut Batch) -> Result<bool, ReadError> {
-        super::source::read_batch_guarded(self, batch)
-    }
-
     fn notes(&self) -> ReadNotes {
         self.notes.clone()
     }
-}
-
-impl<R: Read> super::source::Fill for Aedat3Reader<R> {
     fn fill_batch(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
         self.fill(batch)
     }

@@ -32,8 +32,7 @@ use std::io::{self, Read, Write};
 use evpose_core::Event;
 
 use super::{
-    read_up_to, Batch, CameraInfo, EventReader, Format, ReadError, ReadNotes, StreamInfo,
-    BATCH_EVENTS,
+    read_up_to, Batch, CameraInfo, Format, ReadError, ReadNotes, StreamInfo, BATCH_EVENTS,
 };
 
 /// The 14 bytes every AEDAT 4.0 file starts with.
@@ -913,25 +912,6 @@ fn decode_event(chunk: &[u8]) -> Option<Event> {
     ))
 }
 
-impl<R: Read> EventReader for Aedat4Reader<R> {
-    fn info(&self) -> &StreamInfo {
-        &self.info
-    }
-
-    /// Fills `batch` with up to [`BATCH_EVENTS`] events, from one or more packets (a large
-    /// packet is split over several batches). After an error the reader is finished.
-    fn read_batch(&mut self, batch: &mut Batch) -> Result<bool, ReadError> {
-        super::source::read_batch_guarded(self, batch)
-    }
-
-    fn notes(&self) -> ReadNotes {
-        ReadNotes {
-            skipped_packets: self.skipped,
-            ..ReadNotes::default()
-        }
-    }
-}
-
 // ---------------------------------------------------------------------------------------------
 // Writer.
 
@@ -1143,6 +1123,15 @@ fn info_xml(cameras: &[CameraInfo], compression: Compression) -> String {
 }
 
 impl<R: Read> super::source::Fill for Aedat4Reader<R> {
+    fn info(&self) -> &StreamInfo {
+        &self.info
+    }
+    fn notes(&self) -> ReadNotes {
+        ReadNotes {
+            skipped_packets: self.skipped,
+            ..ReadNotes::default()
+        }
+    }
     fn fill_batch(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
         self.fill(batch)
     }

@@ -27,9 +27,7 @@ use evpose_core::Event;
 
 use super::evt::PercentHeader;
 use super::source::{out_of_sensor, time_overflow, Source, Unwrapper};
-use super::{
-    Batch, CameraInfo, EventReader, Format, ReadError, ReadNotes, StreamInfo, BATCH_EVENTS,
-};
+use super::{Batch, CameraInfo, Format, ReadError, ReadNotes, StreamInfo, BATCH_EVENTS};
 
 /// Bytes per record.
 pub const RECORD_BYTES: usize = 8;
@@ -173,25 +171,16 @@ impl<R: Read> DatReader<R> {
     }
 }
 
-impl<R: Read> EventReader for DatReader<R> {
+impl<R: Read> super::source::Fill for DatReader<R> {
     fn info(&self) -> &StreamInfo {
         &self.info
     }
-
-    /// Fills `batch` with up to [`BATCH_EVENTS`] events. After an error the reader is finished.
-    fn read_batch(&mut self, batch: &mut Batch) -> Result<bool, ReadError> {
-        super::source::read_batch_guarded(self, batch)
-    }
-
     fn notes(&self) -> ReadNotes {
         ReadNotes {
             timestamp_wraps: self.time.wraps(),
             ..self.notes.clone()
         }
     }
-}
-
-impl<R: Read> super::source::Fill for DatReader<R> {
     fn fill_batch(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
         self.fill(batch)
     }

@@ -48,9 +48,7 @@ use std::io::Read;
 use evpose_core::Event;
 
 use super::source::{out_of_sensor, parse_geometry, time_overflow, Source, Unwrapper};
-use super::{
-    text, Batch, CameraInfo, EventReader, Format, ReadError, ReadNotes, StreamInfo, BATCH_EVENTS,
-};
+use super::{text, Batch, CameraInfo, Format, ReadError, ReadNotes, StreamInfo, BATCH_EVENTS};
 
 /// The `%` header lines of a Prophesee file, as (lower-case key, value) pairs.
 pub(crate) struct PercentHeader {
@@ -490,22 +488,13 @@ impl Decoder<'_> {
     }
 }
 
-impl<R: Read> EventReader for EvtReader<R> {
+impl<R: Read> super::source::Fill for EvtReader<R> {
     fn info(&self) -> &StreamInfo {
         &self.info
     }
-
-    /// Fills `batch` with up to [`BATCH_EVENTS`] events. After an error the reader is finished.
-    fn read_batch(&mut self, batch: &mut Batch) -> Result<bool, ReadError> {
-        super::source::read_batch_guarded(self, batch)
-    }
-
     fn notes(&self) -> ReadNotes {
         self.notes.clone()
     }
-}
-
-impl<R: Read> super::source::Fill for EvtReader<R> {
     fn fill_batch(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
         self.fill(batch)
     }

@@ -6,7 +6,7 @@
 
 use std::io::{self, Read};
 
-use super::{Batch, ReadError};
+use super::{Batch, EventReader, ReadError, ReadNotes, StreamInfo};
 
 /// Bytes read from the file at a time.
 pub(crate) const CHUNK_BYTES: usize = 256 << 10;
@@ -251,18 +251,39 @@ pub(crate) fn parse_geometry(s: &str) -> Option<(u16, u16)> {
     Some((w.trim().parse().ok()?, h.trim().parse().ok()?))
 }
 
-/// A reader's decoding step, run under [`read_batch_guarded`].
+/// What a record-oriented reader provides; [`EventReader`] follows, with the batch contract
+/// in one place ([`read_batch_guarded`]).
 pub(crate) trait Fill {
+    /// What the header says.
+    fn info(&self) -> &StreamInfo;
+    /// What the reader skipped, repaired or assumed so far.
+    fn notes(&self) -> ReadNotes;
     /// Appends the next events (at most [`super::BATCH_EVENTS`]) to `batch`.
     fn fill_batch(&mut self, batch: &mut Batch) -> Result<(), ReadError>;
     /// The flag that ends the reader (set after an error).
     fn finished(&mut self) -> &mut bool;
 }
 
+impl<T: Fill> EventReader for T {
+    fn info(&self) -> &StreamInfo {
+        Fill::info(self)
+    }
+
+    /// Fills `batch` with up to [`super::BATCH_EVENTS`] events. After an error the reader is
+    /// finished.
+    fn read_batch(&mut self, batch: &mut Batch) -> Result<bool, ReadError> {
+        read_batch_guarded(self, batch)
+    }
+
+    fn notes(&self) -> ReadNotes {
+        Fill::notes(self)
+    }
+}
+
 /// The readers' batch contract, in one place: `batch` is cleared; a finished reader gives
 /// `Ok(false)`; an error finishes the reader and discards the partial batch, so later calls
 /// return `Ok(false)`.
-pub(crate) fn read_batch_guarded(r: &mut impl Fill, batch: &mut Batch) -> Result<bool, ReadError> {
+fn read_batch_guarded(r: &mut impl Fill, batch: &mut Batch) -> Result<bool, ReadError> {
     batch.clear();
     if *r.finished() {
         return Ok(false);

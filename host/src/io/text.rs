@@ -36,8 +36,8 @@ use evpose_core::Event;
 
 use super::source::Source;
 use super::{
-    Batch, CameraInfo, EventReader, Format, ReadError, ReadNotes, StreamInfo, TimeUnit,
-    BATCH_EVENTS, DETECT_BYTES,
+    Batch, CameraInfo, Format, ReadError, ReadNotes, StreamInfo, TimeUnit, BATCH_EVENTS,
+    DETECT_BYTES,
 };
 
 /// Longest line accepted, in bytes.
@@ -603,22 +603,13 @@ pub fn looks_like_text(head: &[u8]) -> bool {
     false
 }
 
-impl<R: Read> EventReader for TextReader<R> {
+impl<R: Read> super::source::Fill for TextReader<R> {
     fn info(&self) -> &StreamInfo {
         &self.info
     }
-
-    /// Fills `batch` with up to [`BATCH_EVENTS`] events. After an error the reader is finished.
-    fn read_batch(&mut self, batch: &mut Batch) -> Result<bool, ReadError> {
-        super::source::read_batch_guarded(self, batch)
-    }
-
     fn notes(&self) -> ReadNotes {
         self.notes.clone()
     }
-}
-
-impl<R: Read> super::source::Fill for TextReader<R> {
     fn fill_batch(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
         self.fill(batch)
     }
