@@ -586,7 +586,7 @@ mod tests {
 
     #[test]
     fn bundled_model_budget_adds_up() {
-        let blob = crate::cli::inference::default_blob().unwrap();
+        let blob = crate::cli::inference::default_blob();
         let m = Model::parse(blob.bytes()).unwrap();
         let b = model_budget(&m, 2048);
         assert_eq!(b.macs_total, 76_960 * 2048 + b.macs_after_pooling);

@@ -153,13 +153,13 @@ pub fn infer(a: &InferArgs) -> Result<()> {
         }
         Engine::F32 => {
             let blob = model::load_blob(&a.model)?;
-            let mut runner = CoreRunner::new(&blob)?;
+            let mut runner = CoreRunner::new(&blob).context(a.model.display().to_string())?;
             let l = repeat(a.repeat, || runner.run_f32(&points))?;
             write_logits(&l, &a.out_x, &a.out_y)
         }
         Engine::I8 => {
             let blob = model::load_blob(&a.model)?;
-            let mut runner = CoreRunner::new(&blob)?;
+            let mut runner = CoreRunner::new(&blob).context(a.model.display().to_string())?;
             let l = repeat(a.repeat, || runner.run_i8(model::kernels(), &points))?;
             write_logits(&l, &a.out_x, &a.out_y)
         }
@@ -286,8 +286,11 @@ pub fn parity_report(
     float: Option<&AlignedBlob>,
 ) -> Result<ParityReport> {
     let mut tract = TractModel::load(onnx)?;
-    let mut core = CoreRunner::new(blob)?;
-    let mut float = float.map(CoreRunner::new).transpose()?;
+    let mut core = CoreRunner::new(blob).context("the int8 blob")?;
+    let mut float = float
+        .map(CoreRunner::new)
+        .transpose()
+        .context("the float model")?;
     let mut r = ParityReport {
         inputs: inputs.len(),
         identical: 0,
@@ -437,14 +440,14 @@ pub fn bench_infer(a: &BenchInferArgs) -> Result<()> {
     let qnet = quant::quantize(&net, &ranges)?;
     let qblob = AlignedBlob::new(&qnet.blob()?);
     let mut tract = TractModel::load(&a.model)?;
-    let model = evpose_core::Model::parse(fblob.bytes()).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let macs = model.macs_per_point() * n as u64 + model.macs_after_pooling();
-    let tract_ms = median_ms(a.iterations, || tract.run(&input).map(|_| ()))?;
     // Each engine is loaded once, then timed (as onnxruntime's session is created once): the
     // core's blob checks and weight packing are not part of an inference.
     let mut core_f32 = CoreRunner::new(&fblob)?;
-    let f32_ms = median_ms(a.iterations, || core_f32.run_f32(&input).map(|_| ()))?;
     let mut core_i8 = CoreRunner::new(&qblob)?;
+    let model = core_f32.model();
+    let macs = model.macs_per_point() * n as u64 + model.macs_after_pooling();
+    let tract_ms = median_ms(a.iterations, || tract.run(&input).map(|_| ()))?;
+    let f32_ms = median_ms(a.iterations, || core_f32.run_f32(&input).map(|_| ()))?;
     let i8_ms = median_ms(a.iterations, || {
         core_i8.run_i8(model::kernels(), &input).map(|_| ())
     })?;
@@ -501,12 +504,9 @@ pub fn bench_infer(a: &BenchInferArgs) -> Result<()> {
 /// checkout): the small reference network, quantized, `assets/pointnet-small.evq`.
 pub const DEFAULT_MODEL: &[u8] = include_bytes!("../../../assets/pointnet-small.evq");
 
-/// [`DEFAULT_MODEL`], aligned and validated.
-pub fn default_blob() -> Result<AlignedBlob> {
-    let blob = AlignedBlob::new(DEFAULT_MODEL);
-    evpose_core::Model::parse(blob.bytes())
-        .map_err(|e| anyhow::anyhow!("bundled model (assets/pointnet-small.evq): {e}"))?;
-    Ok(blob)
+/// [`DEFAULT_MODEL`], aligned (validated where it is parsed, as any blob).
+pub fn default_blob() -> AlignedBlob {
+    AlignedBlob::new(DEFAULT_MODEL)
 }
 
 /// Arguments of `evpose pose`.
@@ -552,9 +552,12 @@ pub struct WindowPose {
 pub fn pose(a: &PoseArgs) -> Result<()> {
     let blob = match &a.model {
         Some(path) => model::load_blob(path)?,
-        None => default_blob()?,
+        None => default_blob(),
     };
-    let mut runner = CoreRunner::new(&blob)?;
+    let mut runner = CoreRunner::new(&blob).with_context(|| match &a.model {
+        Some(path) => path.display().to_string(),
+        None => "the bundled model (assets/pointnet-small.evq)".into(),
+    })?;
     let int8 = runner.model().dtype() == evpose_core::DType::I8;
     let n = a.sampling.points.unwrap_or(2048);
     let mut rng = rng_from_seed(a.sampling.seed);
