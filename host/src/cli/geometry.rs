@@ -141,8 +141,7 @@ pub fn triangulate(a: &TriangulateArgs) -> Result<()> {
             continue;
         };
         let (ja, jb) = (&views_a[window].joints, &views_b[window_b].joints);
-        let mut pose = triangulate_window(&cam_a, ja, &cam_b, jb, window)?;
-        pose.window_b = window_b;
+        let pose = triangulate_window(&cam_a, ja, &cam_b, jb, (window, window_b))?;
         if a.json {
             println!("{}", serde_json::to_string(&pose)?);
         } else {
@@ -152,13 +151,14 @@ pub fn triangulate(a: &TriangulateArgs) -> Result<()> {
     Ok(())
 }
 
-/// Triangulates one window's joints; a joint that fails is `None`, reported on stderr.
+/// Triangulates the joints of window `window` of the first camera and `window_b` of the
+/// second; a joint that fails is `None`, reported on stderr.
 pub fn triangulate_window(
     cam_a: &Camera,
     joints_a: &[(f64, f64)],
     cam_b: &Camera,
     joints_b: &[(f64, f64)],
-    window: usize,
+    (window, window_b): (usize, usize),
 ) -> Result<WindowPose3d> {
     let mut out = vec![Err(GeometryError::NonFinite); joints_a.len()];
     triangulate_joints(cam_a, joints_a, cam_b, joints_b, &mut out)
@@ -173,7 +173,7 @@ pub fn triangulate_window(
         .collect();
     Ok(WindowPose3d {
         window,
-        window_b: window,
+        window_b,
         joints,
     })
 }

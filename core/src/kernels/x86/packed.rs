@@ -9,9 +9,11 @@
 //! Tiles are the outer loop: one tile's points run through every row group, so a layer's
 //! weights stream through once per six points (from L2 for the paper's 512 KiB conv5) while
 //! the points' inputs stay in L1, and `128·Σx` (the correction for the weights' `+128` offset)
-//! is computed once per point. Measured on Zen 5 (`benches/kernels.rs`), that order beat
-//! keeping each row group's 32 KiB in L1 while every tile passes over it: 485 against 340 GMAC/s
-//! on conv5 for blocks of 16 points, about 93 % of the `vpdpbusd` peak.
+//! is computed once per point. On this project's Zen 5 VM, conv5 in blocks of 16 points runs
+//! at 495 GMAC/s this way (`benches/kernels.rs`, `packed/avx512vnni`), 94 % of the 524 GMAC/s
+//! `kernels::peak_loop` measures; the other order, each row group's 32 KiB kept in L1 while
+//! every tile passes over it, measured about 340 GMAC/s with four-point tiles (a timing loop,
+//! on the same machine while it was busy).
 
 use core::arch::x86_64::*;
 
