@@ -29,7 +29,7 @@ use evpose_core::raster::{ConfigError, Window};
 use evpose_core::sample::{rng_from_seed, sample_window, BufferTooSmall, SampleRng};
 use evpose_core::simdr::ShapeError;
 use evpose_core::{
-    decode, run_i8, scratch_words, Davis346Storage, Event, InferError, Joint2d, Model, Pushed,
+    decode, run_i8, scratch_words, Davis346Storage, Event, InferError, Joint2d, Model,
     RasterConfig, Rasterizer,
 };
 use static_cell::ConstStaticCell;
@@ -222,8 +222,13 @@ fn run(per_tick: u64) -> Result<(), Error> {
             break;
         }
         let mut t = clock::ticks();
-        for &e in &events[..n] {
-            if let Pushed::Window(w) = raster.push(e) {
+        // The whole batch at once (`extend`: the same windows as pushing event by event, with
+        // the per-event checks in registers); it stops after an event that closes a window.
+        let mut rest = &events[..n];
+        while !rest.is_empty() {
+            let (used, closed) = raster.extend(rest);
+            rest = &rest[used..];
+            if let Some(w) = closed {
                 rasterize += sw.since(t);
                 let mut ctx = WindowRun {
                     sw: &sw,
