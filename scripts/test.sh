@@ -16,6 +16,16 @@ if ! command -v qemu-system-arm >/dev/null 2>&1; then
   DEBIAN_FRONTEND=noninteractive as_root apt-get install -y -qq qemu-system-arm >/dev/null
 fi
 
+# A clean run writes about 2 GB (target/ 1.8 GB, firmware/target 0.2 GB, measured). Say so up
+# front: a full disk otherwise surfaces as an obscure linker or rustc I/O error mid-build.
+need_kb=$((2500 * 1024))
+free_kb=$(df -Pk . | awk 'NR == 2 { print $4 }')
+echo "scripts/test.sh: $((free_kb / 1024)) MiB free on $(df -P . | awk 'NR == 2 { print $6 }')"
+if [ "${free_kb:-0}" -lt "$need_kb" ]; then
+  echo "warning: a clean build needs about $((need_kb / 1024)) MiB; builds may fail with" \
+    "'No space left on device'. Free space, or set CARGO_TARGET_DIR to a larger disk." >&2
+fi
+
 cargo fmt --all -- --check
 # The firmware is its own workspace, built for thumbv7em-none-eabihf only: format and lint it
 # too. Its build and its run under QEMU are the test `firmware_qemu`.
