@@ -1,9 +1,10 @@
 //! Inference: the f32 and int8 engines over one [`Model`] description.
 //!
-//! Points are processed one at a time through all point layers, and the last point layer is
-//! reduced on the fly into a running max and a running sum, so activation memory is
-//! O(layer widths), never O(points × widths). The caller lends the scratch memory; the model
-//! says how much it needs ([`scratch_words`]); too little is an error, not a panic.
+//! Points go through all point layers in blocks (as many points as the lent scratch holds, up
+//! to [`MAX_BLOCK`]; one on an MCU), and the last point layer is reduced on the fly into a
+//! running max and a running sum, so activation memory is O(block × layer widths), never
+//! O(points × widths). The caller lends the scratch memory; the model says how much it needs
+//! ([`scratch_words`], [`scratch_words_for_block`]); too little is an error, not a panic.
 //!
 //! The int8 engine's arithmetic is defined in [`crate::quant`]; the heads' int32 accumulators
 //! are the outputs (their argmax is the argmax of the dequantized logits).
@@ -11,7 +12,7 @@
 use core::fmt;
 
 use crate::kernels::packed::{packed_len, PackedI8};
-use crate::kernels::{self, Kernels};
+use crate::kernels::Kernels;
 use crate::model::{Bias, DType, Layer, LayerKind, Model, Weights, FEATURES};
 use crate::quant::{self, InputCoding};
 
@@ -78,36 +79,44 @@ impl fmt::Display for InferError {
 
 impl core::error::Error for InferError {}
 
-/// Most points the int8 engine processes per pass over the point layers' weights (a multiple
+/// Most points an engine processes per pass over the point layers' weights (a multiple
 /// of the packed x86 kernel's six-point tile).
 pub const MAX_BLOCK: usize = 24;
 
-/// 32-bit scratch words an inference with `model` needs at least (either engine; the int8
-/// engine then processes one point at a time).
+/// 32-bit scratch words an inference with `model` needs at least (either engine; it then
+/// processes one point at a time).
 pub fn scratch_words(model: &Model<'_>) -> usize {
     scratch_words_for_block(model, 1)
 }
 
-/// Scratch words for the int8 engine to process `block` points per pass over the point layers'
-/// weights (`1..=MAX_BLOCK`; more scratch, fewer weight reads). The f32 engine needs
-/// `scratch_words(model)` whatever the block.
+/// Scratch words for the engine of `model`'s number format to process `block` points per pass
+/// over the point layers' weights (`1..=MAX_BLOCK`; more scratch, fewer weight reads).
 ///
-/// The int8 engine picks the largest block the lent scratch holds.
+/// Both engines pick the largest block the lent scratch holds.
 pub fn scratch_words_for_block(model: &Model<'_>, block: usize) -> usize {
+    let b = block.clamp(1, MAX_BLOCK);
     let pooled = model.pooled_width() as usize;
     let fc = (2 * pooled).max(model.widest_fc()) + model.widest_fc();
     let acts = model.point_activation_width();
     match model.dtype() {
-        // input features | point activations | FC ping-pong | per-layer accumulators
-        DType::F32 => FEATURES + acts + 2 * pooled + fc,
+        // block of input features | block of point activations | max, sum | FC ping-pong
+        DType::F32 => b * (FEATURES + acts) + 2 * pooled + fc,
         // i32: sums, block accumulators | bytes: block of i16 inputs (8 each), block of
         // activations, block of gathered layer inputs, FC ping-pong
         DType::I8 => {
-            let b = block.clamp(1, MAX_BLOCK);
             let bytes = b * (16 + acts + widest_input(model)) + fc;
             pooled + b * widest_layer(model) + bytes.div_ceil(4)
         }
     }
+}
+
+/// The largest block whose scratch fits in `words` (1 if none does; [`check_args`] refuses
+/// that case first).
+fn block_for(model: &Model<'_>, words: usize) -> usize {
+    (1..=MAX_BLOCK)
+        .rev()
+        .find(|&b| scratch_words_for_block(model, b) <= words)
+        .unwrap_or(1)
 }
 
 fn widest_input(model: &Model<'_>) -> usize {
@@ -188,7 +197,8 @@ pub enum Stage {
 }
 
 /// Runs the f32 engine on `points` (rows `[x, y, t_avg, p_acc, cnt]`), writing the x logits
-/// (`J × W`) and y logits (`J × H`).
+/// (`J × W`) and y logits (`J × H`), with the kernels chosen at compile time
+/// ([`Kernels::best`]).
 pub fn run_f32(
     model: &Model<'_>,
     points: &[[f32; FEATURES]],
@@ -196,11 +206,40 @@ pub fn run_f32(
     out_x: &mut [f32],
     out_y: &mut [f32],
 ) -> Result<(), InferError> {
-    run_f32_observed(model, points, scratch, out_x, out_y, |_, _| {})
+    run_f32_observed(
+        &Kernels::best(),
+        model,
+        points,
+        scratch,
+        out_x,
+        out_y,
+        |_, _| {},
+    )
 }
 
-/// [`run_f32`], calling `observe` with every intermediate activation vector.
+/// [`run_f32`] with a kernel table, e.g. [`Kernels::detect`] for the CPU it runs on. Every
+/// table gives the same bits (the f32 kernel sums in a fixed order), and so does every block
+/// size.
+pub fn run_f32_with(
+    k: &Kernels,
+    model: &Model<'_>,
+    points: &[[f32; FEATURES]],
+    scratch: &mut [f32],
+    out_x: &mut [f32],
+    out_y: &mut [f32],
+) -> Result<(), InferError> {
+    run_f32_observed(k, model, points, scratch, out_x, out_y, |_, _| {})
+}
+
+/// Weights of one row tile of an f32 point layer: every point of a block goes through the
+/// tile while it is in L1 (16 KiB), instead of each point streaming the whole layer from
+/// memory (the paper model's point layers are 2.3 MB in f32).
+const F32_TILE_WEIGHTS: usize = 4096;
+
+/// [`run_f32_with`], calling `observe` with every intermediate activation vector (per point
+/// for the point layers, in no particular order of points).
 pub fn run_f32_observed(
+    k: &Kernels,
     model: &Model<'_>,
     points: &[[f32; FEATURES]],
     scratch: &mut [f32],
@@ -218,34 +257,59 @@ pub fn run_f32_observed(
     let (offs, acts_len) = layer_offsets(model);
     let pooled = model.pooled_width() as usize;
     let last = model.point_layer_count() - 1;
-    let (input, rest) = scratch.split_at_mut(FEATURES);
-    let (acts, rest) = rest.split_at_mut(acts_len);
+    let block = block_for(model, scratch.len());
+    let (inputs, rest) = scratch.split_at_mut(block * FEATURES);
+    let (acts, rest) = rest.split_at_mut(block * acts_len);
     let (max, rest) = rest.split_at_mut(pooled);
     let (sum, fc) = rest.split_at_mut(pooled);
     max.fill(f32::NEG_INFINITY);
     sum.fill(0.0);
-    for p in points {
-        input.copy_from_slice(p);
+    for chunk in points.chunks(block) {
+        let n = chunk.len();
+        for (dst, p) in inputs.chunks_exact_mut(FEATURES).zip(chunk) {
+            dst.copy_from_slice(p);
+        }
         for i in 0..=last {
             let l = model.layer(i);
             let (Weights::F32(w), Bias::F32(b)) = (l.weights, l.bias) else {
                 return Err(InferError::DType);
             };
-            let (before, after) = acts.split_at_mut(offs[i]);
-            let out = &mut after[..l.desc.out_dim as usize];
-            let x: &[f32] = if l.desc.sources == 1 {
-                input
-            } else {
-                &before[source_range(l.desc.sources, &offs)]
-            };
-            kernels::matvec_f32(w, x, b, out);
-            leaky_f32(out, l.desc.leaky);
-            observe(Stage::Point(i), out);
+            let (k_in, out_dim) = (l.desc.in_dim as usize, l.desc.out_dim as usize);
+            let tile = (F32_TILE_WEIGHTS / k_in.max(1)).max(1);
+            for r0 in (0..out_dim).step_by(tile) {
+                let rows = r0..(r0 + tile).min(out_dim);
+                let (w, b) = (&w[rows.start * k_in..rows.end * k_in], &b[rows.clone()]);
+                for (input, act) in inputs
+                    .chunks_exact(FEATURES)
+                    .zip(acts.chunks_exact_mut(acts_len))
+                    .take(n)
+                {
+                    // A layer reads the input features or earlier layers' outputs (before
+                    // its own in the row).
+                    let (before, after) = act.split_at_mut(offs[i]);
+                    let x: &[f32] = if l.desc.sources == 1 {
+                        input
+                    } else {
+                        &before[source_range(l.desc.sources, &offs)]
+                    };
+                    k.matvec_f32(w, x, b, &mut after[rows.clone()]);
+                }
+            }
+            for act in acts.chunks_exact_mut(acts_len).take(n) {
+                let out = &mut act[offs[i]..offs[i + 1]];
+                leaky_f32(out, l.desc.leaky);
+                observe(Stage::Point(i), out);
+            }
         }
-        let y = &acts[offs[last]..offs[last + 1]];
-        for ((m, s), &v) in max.iter_mut().zip(sum.iter_mut()).zip(y) {
-            *m = m.max(v);
-            *s += v;
+        for act in acts.chunks_exact(acts_len).take(n) {
+            for ((m, s), &v) in max
+                .iter_mut()
+                .zip(sum.iter_mut())
+                .zip(&act[offs[last]..offs[last + 1]])
+            {
+                *m = m.max(v);
+                *s += v;
+            }
         }
     }
     let (a, b) = fc.split_at_mut((2 * pooled).max(model.widest_fc()));
@@ -259,7 +323,7 @@ pub fn run_f32_observed(
         let (Weights::F32(w), Bias::F32(bias)) = (l.weights, l.bias) else {
             return Err(InferError::DType);
         };
-        kernels::matvec_f32(w, x, bias, out);
+        k.matvec_f32(w, x, bias, out);
         leaky_f32(out, l.desc.leaky);
         observe(Stage::Fc(i), out);
         Ok(())
@@ -268,7 +332,7 @@ pub fn run_f32_observed(
         let (Weights::F32(w), Bias::F32(bias)) = (l.weights, l.bias) else {
             return Err(InferError::DType);
         };
-        kernels::matvec_f32(w, f, bias, dst);
+        k.matvec_f32(w, f, bias, dst);
         Ok(())
     })
 }
@@ -509,10 +573,7 @@ fn run_i8_impl(
     let last = model.point_layer_count() - 1;
     let widest = widest_layer(model);
     let widest_in = widest_input(model);
-    let block = (1..=MAX_BLOCK)
-        .rev()
-        .find(|&b| scratch_words_for_block(model, b) <= scratch.len())
-        .unwrap_or(1);
+    let block = block_for(model, scratch.len());
     let (sum, rest) = scratch.split_at_mut(pooled);
     let (acc, bytes) = rest.split_at_mut(block * widest);
     let bytes: &mut [i8] = bytemuck::cast_slice_mut(bytes);

@@ -52,8 +52,9 @@ pub mod simdr;
 
 pub use event::Event;
 pub use infer::{
-    pack_point_layers, packed_bytes, run_f32, run_f32_observed, run_i8, run_i8_packed, run_i8_with,
-    scratch_words, scratch_words_for_block, InferError, PackedLayout, PackedWeights, Stage,
+    pack_point_layers, packed_bytes, run_f32, run_f32_observed, run_f32_with, run_i8,
+    run_i8_packed, run_i8_with, scratch_words, scratch_words_for_block, InferError, PackedLayout,
+    PackedWeights, Stage,
 };
 pub use model::{DType, Model, ModelError};
 pub use raster::{

@@ -895,6 +895,107 @@ fn vnni_tables_have_a_native_packed_kernel() {
     }
 }
 
+// The f32 kernel: partial sums in a fixed order, so every table gives the same bits.
+
+/// `(w, x, bias, out_len)` like [`shape`], in f32.
+fn shape_f32(
+    k: std::ops::Range<usize>,
+) -> impl Strategy<Value = (Vec<f32>, Vec<f32>, Vec<f32>, usize)> {
+    let val = prop_oneof![8 => -4.0f32..4.0, 1 => Just(0.0f32), 1 => -1e3f32..1e3];
+    shape(val, k).prop_map(|(w, x, b, n)| {
+        let b = b.iter().map(|&v| v as f32 / (1 << 26) as f32).collect();
+        (w, x, b, n)
+    })
+}
+
+fn bits(v: &[f32]) -> Vec<u32> {
+    v.iter().map(|f| f.to_bits()).collect()
+}
+
+/// Checks the reference against the f64 sum (within the worst-case rounding of any summation
+/// order), each row alone against the rows together, and every table against the reference,
+/// bit for bit; elements past the computed rows stay untouched.
+fn check_f32(w: &[f32], x: &[f32], bias: &[f32], out_len: usize) {
+    const UNTOUCHED: f32 = 7.5;
+    let k = x.len();
+    let rows = kernels::rows(k, w.len(), bias.len(), out_len);
+    let mut want = vec![UNTOUCHED; out_len];
+    reference::matvec_f32(w, x, bias, &mut want);
+    assert!(want[rows..].iter().all(|&v| v == UNTOUCHED));
+    let u = 2f64.powi(-24); // f32 unit roundoff
+    let gamma = (k + 2) as f64 * u / (1.0 - (k + 2) as f64 * u);
+    for o in 0..rows {
+        let row = &w[o * k..(o + 1) * k];
+        let exact: f64 = row
+            .iter()
+            .zip(x)
+            .map(|(&a, &b)| a as f64 * b as f64)
+            .sum::<f64>()
+            + bias[o] as f64;
+        let magnitude: f64 = row
+            .iter()
+            .zip(x)
+            .map(|(&a, &b)| (a as f64 * b as f64).abs())
+            .sum::<f64>()
+            + (bias[o] as f64).abs();
+        let err = (want[o] as f64 - exact).abs();
+        assert!(
+            err <= gamma * magnitude,
+            "row {o}: error {err} over {}",
+            gamma * magnitude
+        );
+        let mut alone = [UNTOUCHED];
+        reference::matvec_f32(row, x, &bias[o..=o], &mut alone);
+        assert_eq!(alone[0].to_bits(), want[o].to_bits(), "row {o} alone");
+    }
+    for kern in with_reference_table() {
+        let mut got = vec![UNTOUCHED; out_len];
+        kern.matvec_f32(w, x, bias, &mut got);
+        assert_eq!(bits(&got), bits(&want), "{}", kern.name());
+    }
+    let mut got = vec![UNTOUCHED; out_len];
+    kernels::matvec_f32(w, x, bias, &mut got);
+    assert_eq!(bits(&got), bits(&want), "kernels::matvec_f32");
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(512))]
+
+    #[test]
+    fn f32_kernels_match_reference_bits((w, x, b, n) in shape_f32(0..300)) {
+        check_f32(&w, &x, &b, n);
+    }
+
+    #[test]
+    fn f32_kernels_match_reference_bits_small_k((w, x, b, n) in shape_f32(0..40)) {
+        check_f32(&w, &x, &b, n);
+    }
+}
+
+#[test]
+fn f32_model_shapes() {
+    // The paper model's point layers, FC layers and heads (K, rows).
+    for (k, rows) in [
+        (5, 64),
+        (64, 64),
+        (64, 128),
+        (128, 256),
+        (512, 1024),
+        (2048, 8),
+        (1024, 7),
+    ] {
+        let w: Vec<f32> = (0..k * rows)
+            .map(|i| ((i * 7919 % 2001) as f32 - 1000.0) / 997.0)
+            .collect();
+        let x: Vec<f32> = (0..k)
+            .map(|i| ((i * 104_729 % 401) as f32 - 200.0) / 50.0)
+            .collect();
+        let b: Vec<f32> = (0..rows).map(|i| i as f32 * 0.25 - 3.0).collect();
+        check_f32(&w, &x, &b, rows);
+        check_f32(&w, &x, &b, rows + 3);
+    }
+}
+
 // Requantization and pooling, the engine's loops between kernels.
 
 proptest! {

@@ -62,8 +62,9 @@
 //! # Between the kernels
 //!
 //! The engine's requantization ([`reference::requantize_i8`]) and pooling
-//! ([`reference::pool_i8`]) loops are in the table too: the x86 tables compile the same scalar
-//! code with AVX2 or AVX-512 enabled, so the compiler vectorizes it for those registers (a
+//! ([`reference::pool_i8`]) loops are in the table too, and so is the f32 engine's kernel
+//! ([`reference::matvec_f32`], partial sums in a fixed order): the x86 tables compile the same
+//! scalar code with AVX2 or AVX-512 enabled, so the compiler vectorizes it for those registers (a
 //! default `x86_64` build would otherwise get 128-bit SSE2 for them). IEEE arithmetic gives the
 //! same result in every lane, and the tests compare them with `==` anyway.
 
@@ -75,7 +76,9 @@ pub mod reference;
 pub mod x86;
 
 pub use packed::{MatmatPackedI8, PackedI8};
-pub use reference::matvec_f32;
+
+/// The f32 kernel signature: `(w, x, bias, out)`, see [`reference::matvec_f32`].
+pub type MatvecF32 = fn(&[f32], &[f32], &[f32], &mut [f32]);
 
 /// The int8 kernel signature: `(w, x, bias, out)`.
 pub type MatvecI8 = fn(&[i8], &[i8], &[i32], &mut [i32]);
@@ -221,8 +224,8 @@ const X86_FASTEST_FIRST: [Isa; 4] = [
 ];
 
 /// One int8 and one i16 matrix-vector kernel, one int8 matrix-matrix kernel, the packed
-/// kernel where the ISA has one, and the requantization and pooling loops, every one bit-exact
-/// with [`reference`](mod@reference).
+/// kernel where the ISA has one, the requantization and pooling loops, and the f32
+/// matrix-vector kernel, every one bit-exact with [`reference`](mod@reference).
 ///
 /// Only kernels the CPU runs can be put in a table (the fields are private), so the calls are
 /// safe. Pick once, keep the table:
@@ -252,6 +255,7 @@ pub struct Kernels {
     i8pk: Option<MatmatPackedI8>,
     requant: RequantizeI8,
     pool: PoolI8,
+    f32: MatvecF32,
 }
 
 impl Kernels {
@@ -266,6 +270,7 @@ impl Kernels {
             i8pk: None,
             requant: reference_requantize,
             pool: reference_pool,
+            f32: reference::matvec_f32,
         }
     }
 
@@ -362,6 +367,13 @@ impl Kernels {
         (self.pool)(max, sum, y)
     }
 
+    /// [`reference::matvec_f32`], bit-exact, compiled for this table's registers (the f32
+    /// engine's kernel).
+    #[inline]
+    pub fn matvec_f32(&self, w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]) {
+        (self.f32)(w, x, bias, out)
+    }
+
     /// Whether this table has a native kernel for [packed](mod@packed) weights (else
     /// [`Kernels::matmat_packed_i8`] runs the reference, and the row-major
     /// [`Kernels::matmat_i8`] is the faster choice).
@@ -439,6 +451,12 @@ pub fn peak_loop(isa: Isa, iters: u64) -> Option<u64> {
 
 /// The kernels [`matvec_i8`], [`matvec_i16`] and [`matmat_i8`] use.
 const BEST: Kernels = Kernels::best();
+
+/// [`reference::matvec_f32`], bit-exact, with the compile-time best kernel ([`Kernels::best`]).
+#[inline]
+pub fn matvec_f32(w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]) {
+    BEST.matvec_f32(w, x, bias, out)
+}
 
 /// [`reference::matvec_i8`], bit-exact, with the compile-time best kernel ([`Kernels::best`]).
 #[inline]

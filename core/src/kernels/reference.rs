@@ -54,11 +54,93 @@ pub fn matvec_i16(w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]) {
     }
 }
 
-/// f32 version: the dot product summed in index order, then the bias added.
+/// Partial sums of the f32 dot product: independent chains, so that the compiler can keep them
+/// in vector registers (one running sum is a dependency chain it may not reorder).
+const F32_LANES: usize = 16;
+
+/// Adds the partial sums in a fixed order: halves lane by lane, down to one.
+#[inline(always)]
+fn sum_lanes(mut acc: [f32; F32_LANES]) -> f32 {
+    let mut n = F32_LANES;
+    while n > 1 {
+        n /= 2;
+        let (lo, hi) = acc.split_at_mut(n);
+        for (a, &b) in lo.iter_mut().zip(&*hi) {
+            *a += b;
+        }
+    }
+    acc[0]
+}
+
+/// Rows of the f32 kernel computed together: independent chains of partial sums for the
+/// CPU to overlap, each row summed exactly as alone.
+const F32_ROWS: usize = 4;
+
+/// One row's result from its partial sums, the dot product of the last `K mod 16` elements in
+/// index order, and the bias.
+#[inline(always)]
+fn finish_row(acc: [f32; F32_LANES], w_tail: &[f32], x_tail: &[f32], b: f32) -> f32 {
+    let tail = w_tail
+        .iter()
+        .zip(x_tail)
+        .fold(0.0, |acc, (&w, &x)| acc + w * x);
+    sum_lanes(acc) + tail + b
+}
+
+/// f32 version: `out[o] = Σ_j w[o·K + j] · x[j] + bias[o]` for the rows the three slices share
+/// (`K = x.len()`; `K = 0` gives `out[o] = bias[o]`).
+///
+/// Element `j` of a row goes to partial sum `j mod 16` (the last `K mod 16` to a seventeenth,
+/// in index order); the partial sums are added in a fixed order ([`sum_lanes`]), then the bias.
+/// The order does not depend on the CPU, on the registers the loop is compiled for (Rust
+/// never contracts `a + w · x` into a fused multiply-add) or on which rows are computed
+/// together, so every kernel table gives the same bits. It is not index order: results differ
+/// from a sequential sum by rounding, within the float paths' stated tolerance.
+#[inline(always)]
 pub fn matvec_f32(w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]) {
     let k = x.len();
-    for ((o, row), &b) in out.iter_mut().zip(w.chunks_exact(k)).zip(bias) {
-        *o = row.iter().zip(x).fold(0.0, |acc, (&w, &x)| acc + w * x) + b;
+    let n = super::rows(k, w.len(), bias.len(), out.len());
+    let (out, bias) = (&mut out[..n], &bias[..n]);
+    if k == 0 {
+        out.copy_from_slice(bias);
+        return;
+    }
+    let (x_lanes, x_tail) = x.as_chunks::<F32_LANES>();
+    let (out_groups, out_rest) = out.as_chunks_mut::<F32_ROWS>();
+    let (bias_groups, bias_rest) = bias.as_chunks::<F32_ROWS>();
+    let (w_groups, w_rest) = w[..n * k].split_at(out_groups.len() * F32_ROWS * k);
+    for ((o, b), w) in out_groups
+        .iter_mut()
+        .zip(bias_groups)
+        .zip(w_groups.chunks_exact(F32_ROWS * k))
+    {
+        let row = |r: usize| w[r * k..(r + 1) * k].as_chunks::<F32_LANES>();
+        let ((w0, t0), (w1, t1), (w2, t2), (w3, t3)) = (row(0), row(1), row(2), row(3));
+        let mut acc = [[0.0f32; F32_LANES]; F32_ROWS];
+        for ((((xv, w0), w1), w2), w3) in x_lanes.iter().zip(w0).zip(w1).zip(w2).zip(w3) {
+            for (acc, wv) in acc.iter_mut().zip([w0, w1, w2, w3]) {
+                for ((a, &w), &x) in acc.iter_mut().zip(wv).zip(xv) {
+                    *a += w * x;
+                }
+            }
+        }
+        for (((o, acc), t), &b) in o.iter_mut().zip(acc).zip([t0, t1, t2, t3]).zip(b) {
+            *o = finish_row(acc, t, x_tail, b);
+        }
+    }
+    for ((o, row), &b) in out_rest
+        .iter_mut()
+        .zip(w_rest.chunks_exact(k))
+        .zip(bias_rest)
+    {
+        let (w_lanes, w_tail) = row.as_chunks::<F32_LANES>();
+        let mut acc = [0.0f32; F32_LANES];
+        for (wv, xv) in w_lanes.iter().zip(x_lanes) {
+            for ((a, &w), &x) in acc.iter_mut().zip(wv).zip(xv) {
+                *a += w * x;
+            }
+        }
+        *o = finish_row(acc, w_tail, x_tail, b);
     }
 }
 

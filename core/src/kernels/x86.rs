@@ -186,9 +186,9 @@ pub(super) const fn kernels(isa: Isa, features: Features) -> Option<Kernels> {
         Isa::X86Avx512Vnni => Some(avx512vnni_i8pk),
         _ => None,
     };
-    let (requant, pool): (super::RequantizeI8, super::PoolI8) = match isa {
-        Isa::X86Avx2 | Isa::X86AvxVnni => (avx2_requant, avx2_pool),
-        _ => (avx512_requant, avx512_pool),
+    let (requant, pool, f32): (super::RequantizeI8, super::PoolI8, super::MatvecF32) = match isa {
+        Isa::X86Avx2 | Isa::X86AvxVnni => (avx2_requant, avx2_pool, avx2_f32),
+        _ => (avx512_requant, avx512_pool, avx512_f32),
     };
     Some(Kernels {
         isa,
@@ -198,6 +198,7 @@ pub(super) const fn kernels(isa: Isa, features: Features) -> Option<Kernels> {
         i8pk,
         requant,
         pool,
+        f32,
     })
 }
 
@@ -234,7 +235,7 @@ macro_rules! checked_mm {
     )*};
 }
 
-/// The reference requantization and pooling loops compiled for AVX2 or AVX-512 registers
+/// The reference requantization, pooling and f32 loops compiled for AVX2 or AVX-512 registers
 /// (the same scalar code, vectorized by the compiler: the same IEEE operations per lane), with
 /// the safe wrappers `kernels` stores.
 macro_rules! widened {
@@ -264,6 +265,9 @@ widened! {
     pool_avx2 / avx2_pool: "avx2" => pool_i8(max: &mut [i8], sum: &mut [i32], y: &[i8]);
     pool_avx512 / avx512_pool: "avx2,avx512f,avx512bw,avx512vl" => pool_i8(
         max: &mut [i8], sum: &mut [i32], y: &[i8]);
+    f32_avx2 / avx2_f32: "avx2" => matvec_f32(w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]);
+    f32_avx512 / avx512_f32: "avx2,avx512f,avx512bw,avx512vl" => matvec_f32(
+        w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]);
 }
 
 /// The packed kernel behind the same kind of wrapper.

@@ -1,7 +1,7 @@
 //! `evpose budget`: what a model costs on an MCU, and what a firmware image occupies.
 //!
 //! Per layer: MACs (per point for point layers, per vector for FC layers, per joint for the
-//! heads), weight bytes and bias/scale bytes; the int8 engine's scratch from
+//! heads), weight bytes and bias/scale bytes; the scratch of the blob's engine (int8 or f32) from
 //! [`evpose_core::scratch_words`]; MACs for `N` points. With an ELF (by default the firmware's
 //! release image, when it has been built), flash and RAM from its section headers:
 //!
@@ -96,7 +96,7 @@ pub struct ModelBudget {
     pub scratch_bytes: usize,
     /// Head outputs (`J × (W + H)` values of 4 bytes), lent by the caller.
     pub output_bytes: usize,
-    /// Scratch words of the int8 engine in blocks of `MAX_BLOCK` points (what the host lends:
+    /// Scratch words of the blob's engine in blocks of `MAX_BLOCK` points (what the host lends:
     /// fewer passes over the weights); `scratch_words` is the one-point minimum an MCU lends.
     pub block_scratch_words: usize,
     /// Bytes of the packed copy of the point layers' weights that a host with a native packed

@@ -11,7 +11,7 @@ use std::path::Path;
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use evpose_core::kernels::Kernels;
 use evpose_core::{
-    pack_point_layers, packed_bytes, run_f32, run_i8_packed, run_i8_with, scratch_words,
+    pack_point_layers, packed_bytes, run_f32_with, run_i8_packed, run_i8_with,
     scratch_words_for_block, DType, Model, PackedLayout,
 };
 use tract_core::internal::DimLike;
@@ -193,9 +193,15 @@ impl<'b> CoreRunner<'b> {
         } else {
             None
         };
+        // Scratch for the model's engine only, for its largest block of points.
+        let words = scratch_words_for_block(&model, evpose_core::infer::MAX_BLOCK);
+        let (f32_words, i32_words) = match model.dtype() {
+            DType::F32 => (words, 0),
+            DType::I8 => (0, words),
+        };
         Ok(Self {
-            scratch_f32: vec![0.0; scratch_words(&model)],
-            scratch_i32: vec![0; scratch_words_for_block(&model, evpose_core::infer::MAX_BLOCK)],
+            scratch_f32: vec![0.0; f32_words],
+            scratch_i32: vec![0; i32_words],
             model,
             packed,
         })
@@ -218,7 +224,8 @@ impl<'b> CoreRunner<'b> {
     /// Runs the f32 engine.
     pub fn run_f32(&mut self, points: &[[f32; 5]]) -> Result<Logits<f32>> {
         let mut out = self.outputs();
-        run_f32(
+        run_f32_with(
+            kernels(),
             &self.model,
             points,
             &mut self.scratch_f32,

@@ -17,9 +17,10 @@
 //! `LeakyRelu`, `QuantizeLinear` with scale 1, `ReduceMax` (int8), `ReduceSum` (int32), `Div`.
 
 use anyhow::{ensure, Result};
+use evpose_core::infer::MAX_BLOCK;
 use evpose_core::model::{DType, LayerKind, WeightType, FEATURES};
 use evpose_core::quant::{InputCoding, FIRST_BIAS_LIMIT, FIRST_WEIGHT_LIMIT};
-use evpose_core::{run_f32_observed, scratch_words, Model, Stage};
+use evpose_core::{run_f32_observed, scratch_words_for_block, Model, Stage};
 
 use super::net::{
     f32_blob, le_bytes, write_blob, AlignedBlob, BlobHeader, BlobLayer, Dense, FloatNet,
@@ -46,7 +47,7 @@ pub fn calibrate(net: &FloatNet, inputs: &[Vec<[f32; 5]>]) -> Result<Ranges> {
     );
     let blob = AlignedBlob::new(&f32_blob(net)?);
     let model = Model::parse(blob.bytes()).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let mut scratch = vec![0f32; scratch_words(&model)];
+    let mut scratch = vec![0f32; scratch_words_for_block(&model, MAX_BLOCK)];
     let mut x = vec![0f32; model.joints() * model.width()];
     let mut y = vec![0f32; model.joints() * model.height()];
     let pooled = net.pooled_width();
@@ -59,6 +60,7 @@ pub fn calibrate(net: &FloatNet, inputs: &[Vec<[f32; 5]>]) -> Result<Ranges> {
     let absmax = |v: &[f32]| v.iter().fold(0f32, |m, x| m.max(x.abs()));
     for points in inputs {
         run_f32_observed(
+            super::kernels(),
             &model,
             points,
             &mut scratch,
