@@ -206,15 +206,7 @@ pub fn run_f32(
     out_x: &mut [f32],
     out_y: &mut [f32],
 ) -> Result<(), InferError> {
-    run_f32_observed(
-        &Kernels::best(),
-        model,
-        points,
-        scratch,
-        out_x,
-        out_y,
-        |_, _| {},
-    )
+    run_f32_with(&Kernels::best(), model, points, scratch, out_x, out_y)
 }
 
 /// [`run_f32`] with a kernel table, e.g. [`Kernels::detect`] for the CPU it runs on. Every

@@ -974,7 +974,8 @@ proptest! {
 
 #[test]
 fn f32_model_shapes() {
-    // The paper model's point layers, FC layers and heads (K, rows).
+    // The paper model's point layers and heads (K, rows), and its FC layers' K with a few rows
+    // (odd counts, for the rows past the last group of four).
     for (k, rows) in [
         (5, 64),
         (64, 64),
@@ -983,6 +984,8 @@ fn f32_model_shapes() {
         (512, 1024),
         (2048, 8),
         (1024, 7),
+        (128, 346),
+        (128, 260),
     ] {
         let w: Vec<f32> = (0..k * rows)
             .map(|i| ((i * 7919 % 2001) as f32 - 1000.0) / 997.0)

@@ -76,6 +76,14 @@ fn sum_lanes(mut acc: [f32; F32_LANES]) -> f32 {
 /// CPU to overlap, each row summed exactly as alone.
 const F32_ROWS: usize = 4;
 
+/// Adds 16 products to their partial sums, product `j` to sum `j`.
+#[inline(always)]
+fn accumulate(acc: &mut [f32; F32_LANES], w: &[f32; F32_LANES], x: &[f32; F32_LANES]) {
+    for ((a, &w), &x) in acc.iter_mut().zip(w).zip(x) {
+        *a += w * x;
+    }
+}
+
 /// One row's result from its partial sums, the dot product of the last `K mod 16` elements in
 /// index order, and the bias.
 #[inline(always)]
@@ -119,9 +127,7 @@ pub fn matvec_f32(w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]) {
         let mut acc = [[0.0f32; F32_LANES]; F32_ROWS];
         for ((((xv, w0), w1), w2), w3) in x_lanes.iter().zip(w0).zip(w1).zip(w2).zip(w3) {
             for (acc, wv) in acc.iter_mut().zip([w0, w1, w2, w3]) {
-                for ((a, &w), &x) in acc.iter_mut().zip(wv).zip(xv) {
-                    *a += w * x;
-                }
+                accumulate(acc, wv, xv);
             }
         }
         for (((o, acc), t), &b) in o.iter_mut().zip(acc).zip([t0, t1, t2, t3]).zip(b) {
@@ -136,9 +142,7 @@ pub fn matvec_f32(w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]) {
         let (w_lanes, w_tail) = row.as_chunks::<F32_LANES>();
         let mut acc = [0.0f32; F32_LANES];
         for (wv, xv) in w_lanes.iter().zip(x_lanes) {
-            for ((a, &w), &x) in acc.iter_mut().zip(wv).zip(xv) {
-                *a += w * x;
-            }
+            accumulate(&mut acc, wv, xv);
         }
         *o = finish_row(acc, w_tail, x_tail, b);
     }
