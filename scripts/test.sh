@@ -32,4 +32,6 @@ cargo fmt --all -- --check
 cargo fmt --manifest-path firmware/Cargo.toml -- --check
 (cd firmware && cargo clippy --release -- -D warnings)
 cargo clippy --workspace --all-targets --locked -- -D warnings
+# The runtime builds without tract (feature `onnx` off): readers, pose, rasterization, budgets.
+cargo clippy -p evpose-host --no-default-features --all-targets --locked -- -D warnings
 cargo test --workspace --locked

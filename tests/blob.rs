@@ -1,14 +1,15 @@
 //! The model blob: corrupt, truncated or misaligned blobs are typed errors, never panics.
 
+use evpose_core::kernels::Kernels;
 use evpose_core::model::{Model, ModelError};
-use evpose_core::{run_i8, scratch_words, InferError};
-use evpose_host::model::{self, quant, AlignedBlob};
+use evpose_core::{scratch_words, InferError, Plan};
+use evpose_host::model::{self, quantize, AlignedBlob};
 use evpose_tests::fixtures;
 
 fn small_i8_blob() -> Vec<u8> {
     let net = model::import_onnx(&fixtures().join("pointnet-small.onnx")).unwrap();
     let input = model::read_points(&fixtures().join("street-00.points.npy")).unwrap();
-    let q = quant::quantize(&net, &quant::calibrate(&net, &[input]).unwrap()).unwrap();
+    let q = quantize::quantize(&net, &quantize::calibrate(&net, &[input]).unwrap()).unwrap();
     q.blob().unwrap()
 }
 
@@ -93,9 +94,17 @@ fn too_little_scratch_and_no_points_are_errors() {
     let m = Model::parse(blob.bytes()).unwrap();
     let (mut x, mut y) = (vec![0; 13 * 346], vec![0; 13 * 260]);
     let need = scratch_words(&m);
-    let mut scratch = vec![0; need - 1];
+    // Planned for too little scratch, or run with less than planned.
     assert_eq!(
-        run_i8(&m, &[[1.0; 5]], &mut scratch, &mut x, &mut y),
+        Plan::new(&m, Kernels::best(), need - 1).unwrap_err(),
+        InferError::Scratch {
+            needed: need,
+            got: need - 1
+        }
+    );
+    let plan = Plan::new(&m, Kernels::best(), need).unwrap();
+    assert_eq!(
+        plan.run_i8(&[[1.0; 5]], &mut vec![0; need - 1], &mut x, &mut y),
         Err(InferError::Scratch {
             needed: need,
             got: need - 1
@@ -103,12 +112,69 @@ fn too_little_scratch_and_no_points_are_errors() {
     );
     let mut scratch = vec![0; need];
     assert_eq!(
-        run_i8(&m, &[], &mut scratch, &mut x, &mut y),
+        plan.run_i8(&[], &mut scratch, &mut x, &mut y),
         Err(InferError::NoPoints)
     );
     assert!(matches!(
-        run_i8(&m, &[[1.0; 5]], &mut scratch, &mut x[..5], &mut y),
+        plan.run_i8(&[[1.0; 5]], &mut scratch, &mut x[..5], &mut y),
         Err(InferError::Output { .. })
     ));
-    assert!(run_i8(&m, &[[1.0; 5]], &mut scratch, &mut x, &mut y).is_ok());
+    // The engine is the model's: an int8 plan does not run f32.
+    let (mut fx, mut fy) = (vec![0.0; 13 * 346], vec![0.0; 13 * 260]);
+    assert_eq!(
+        plan.run_f32(&[[1.0; 5]], &mut vec![0.0; need], &mut fx, &mut fy),
+        Err(InferError::DType)
+    );
+    assert!(plan
+        .run_i8(&[[1.0; 5]], &mut scratch, &mut x, &mut y)
+        .is_ok());
+}
+
+#[test]
+fn the_preprocessing_contract_travels_with_the_model() {
+    use evpose_core::model::{header, Preprocessing, CRC};
+    // A blob written now (version 2) records what it was given.
+    let net = model::import_onnx(&fixtures().join("pointnet-small.onnx")).unwrap();
+    let input = model::read_points(&fixtures().join("street-00.points.npy")).unwrap();
+    let mut q = quantize::quantize(&net, &quantize::calibrate(&net, &[input]).unwrap()).unwrap();
+    let want = Preprocessing {
+        points: 1024,
+        window_events: 30_000,
+        slices: 4,
+    };
+    q.preprocessing = want;
+    let bytes = q.blob().unwrap();
+    let blob = AlignedBlob::new(&bytes);
+    assert_eq!(Model::parse(blob.bytes()).unwrap().preprocessing(), want);
+    // Version 1 blobs (the bundled default model) still parse, stating nothing.
+    let v1 = evpose_host::assets::default_blob();
+    assert_eq!(u16::from_le_bytes([v1.bytes()[4], v1.bytes()[5]]), 1);
+    let m = Model::parse(v1.bytes()).unwrap();
+    assert_eq!(m.preprocessing(), Preprocessing::default());
+    // More time slices than the rasterizer has, or a non-zero reserved byte, are errors (the
+    // CRC recomputed, so that the field is what fails).
+    let reseal = |mut b: Vec<u8>| {
+        let crc = CRC.checksum(&b[header::CRC_FROM..]);
+        b[header::CRC..header::CRC + 4].copy_from_slice(&crc.to_le_bytes());
+        AlignedBlob::new(&b)
+    };
+    let mut bad = bytes.clone();
+    bad[header::SLICES] = 9;
+    assert!(matches!(
+        Model::parse(reseal(bad).bytes()),
+        Err(ModelError::Header(_))
+    ));
+    let mut bad = bytes.clone();
+    bad[header::SLICES + 3] = 1;
+    assert!(matches!(
+        Model::parse(reseal(bad).bytes()),
+        Err(ModelError::Header(_))
+    ));
+    // A version 1 blob with preprocessing fields is corrupt.
+    let mut bad = bytes;
+    bad[header::VERSION] = 1;
+    assert!(matches!(
+        Model::parse(reseal(bad).bytes()),
+        Err(ModelError::Header(_))
+    ));
 }

@@ -18,14 +18,14 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use evpose_core::model::{CRC, FEATURES};
-use evpose_core::raster::Window;
-use evpose_core::sample::{rng_from_seed, sample_window};
+use evpose_core::kernels::Kernels;
+use evpose_core::model::FEATURES;
+use evpose_core::pipeline::{PipelineError, I8};
 use evpose_core::{
-    decode, run_i8, scratch_words, Davis346Storage, Event, Joint2d, Model, Pushed, RasterConfig,
-    Rasterizer,
+    scratch_words, Davis346Storage, Estimator, Event, Joint2d, Model, Plan, RasterConfig,
+    Rasterizer, Session, Workspace,
 };
-use evpose_host::cli::budget::image_budget;
+use evpose_host::budget::image_budget;
 use evpose_host::model::AlignedBlob;
 use evpose_tests::fixtures;
 
@@ -148,7 +148,7 @@ mod evs {
 
 /// Events of a bundled `.npy` window ((N, 4) float64 `[x, y, t_us, p]`).
 fn npy_events(path: &Path) -> Vec<Event> {
-    let (shape, v) = evpose_host::npy::read_f64(path).unwrap();
+    let (shape, v) = evpose_host::array::read_f64(path).unwrap();
     assert_eq!(shape.len(), 2, "{}", path.display());
     assert_eq!(shape[1], 4, "{}", path.display());
     v.chunks_exact(4)
@@ -438,61 +438,50 @@ fn firmware_windows(lines: &[String]) -> Vec<(WindowResult, String)> {
     out
 }
 
-fn crc_points(w: &Window<'_>) -> u32 {
-    let mut d = CRC.digest();
-    for p in w.iter() {
-        d.update(&p.x.to_le_bytes());
-        d.update(&p.y.to_le_bytes());
-        d.update(&[p.slice]);
-        d.update(&p.t_avg.to_bits().to_le_bytes());
-        d.update(&p.p_acc.to_le_bytes());
-        d.update(&p.cnt.to_le_bytes());
-    }
-    d.finalize()
-}
-
-fn crc_words<T: Copy>(values: impl IntoIterator<Item = T>, bytes: impl Fn(T) -> [u8; 4]) -> u32 {
-    let mut d = CRC.digest();
-    for v in values {
-        d.update(&bytes(v));
-    }
-    d.finalize()
-}
-
-/// The firmware's pipeline, on the host: same stream, storage, seed, blob and checksums.
+/// The firmware's pipeline, on the host: the same core session over the same stream, storage,
+/// seed and model blob, with the same digests.
 fn host_windows(events: &[Event], blob: &[u8]) -> Vec<WindowResult> {
     let model = Model::parse(blob).unwrap();
     let (j, w, h) = (model.joints(), model.width(), model.height());
     // The firmware's storage type, on the heap (122 KiB) and borrowed, as the firmware
     // borrows its `static`.
     let mut storage = Box::new(Davis346Storage::new());
-    let mut raster = Rasterizer::new(RasterConfig::DAVIS346, &mut *storage).unwrap();
-    let mut rng = rng_from_seed(SEED);
+    let raster = Rasterizer::new(RasterConfig::DAVIS346, &mut *storage).unwrap();
+    let plan = Plan::new(&model, Kernels::best(), scratch_words(&model)).unwrap();
+    let mut session = Session::new(raster, Estimator::new(plan, POINTS, SEED));
     let mut indices = vec![0u32; POINTS];
     let mut rows = vec![[0f32; FEATURES]; POINTS];
-    let mut scratch = vec![0i32; scratch_words(&model)];
+    let mut scratch = vec![0i32; plan.scratch_words()];
     let (mut out_x, mut out_y) = (vec![0i32; j * w], vec![0i32; j * h]);
     let mut joints = vec![Joint2d::default(); j];
+    let mut ws = Workspace::<I8> {
+        indices: &mut indices,
+        rows: &mut rows,
+        scratch: &mut scratch,
+        x: &mut out_x,
+        y: &mut out_y,
+        joints: &mut joints,
+    };
     let mut out = Vec::new();
-    for &e in events {
-        if let Pushed::Window(win) = raster.push(e) {
-            let input = sample_window(&win, POINTS, &mut rng, &mut indices, &mut rows).unwrap();
-            run_i8(&model, input, &mut scratch, &mut out_x, &mut out_y).unwrap();
-            decode(&out_x, &out_y, w, h, &mut joints).unwrap();
-            let s = win.summary();
-            out.push(WindowResult {
-                events: s.events,
-                points: win.len(),
-                t_min: s.t_min,
-                t_max: s.t_max,
-                crc_points: crc_points(&win),
-                crc_input: crc_words(input.iter().flatten().copied(), |v: f32| {
-                    v.to_bits().to_le_bytes()
-                }),
-                crc_heads: crc_words(out_x.iter().chain(&out_y).copied(), i32::to_le_bytes),
-                joints: joints.iter().flat_map(|p| [p.x, p.y]).collect(),
-            });
-        }
+    // Event by event, unlike the firmware's batches: windows do not depend on batching.
+    for e in events {
+        session
+            .feed(std::slice::from_ref(e), &mut ws, &mut (), |e| {
+                let s = e.window.summary();
+                let d = e.digest();
+                out.push(WindowResult {
+                    events: s.events,
+                    points: e.window.len(),
+                    t_min: s.t_min,
+                    t_max: s.t_max,
+                    crc_points: d.points,
+                    crc_input: d.input,
+                    crc_heads: d.heads,
+                    joints: e.joints.iter().flat_map(|p| [p.x, p.y]).collect(),
+                });
+                Ok::<(), PipelineError>(())
+            })
+            .unwrap();
     }
     out
 }

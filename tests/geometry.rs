@@ -9,7 +9,7 @@
 //! what is measured and far below anything a 2-D joint error (≈ 1 px ≈ 10 mm) could show.
 
 use evpose_core::geometry::{triangulate, triangulate_joints, Camera, GeometryError};
-use evpose_host::{dhp19, npy};
+use evpose_host::{array, dhp19};
 use evpose_tests::fixtures;
 
 /// Allowed 3-D error, mm (see the module docs).
@@ -31,10 +31,10 @@ fn max_abs_diff(x: [f64; 3], y: [f64; 3]) -> f64 {
 #[test]
 fn channels_map_to_the_dhp19_calibration_files() {
     let dir = dhp19::default_dir();
-    let (_, centres) = npy::read_f64(&dir.join("camera_positions.npy")).unwrap();
+    let (_, centres) = array::read_f64(&dir.join("camera_positions.npy")).unwrap();
     for (channel, file, row) in [(0, "P4", 3), (1, "P1", 0), (2, "P3", 2), (3, "P2", 1)] {
         let cam = dhp19::camera(&dir, channel).unwrap();
-        let (shape, p) = npy::read_f64(&dir.join(format!("{file}.npy"))).unwrap();
+        let (shape, p) = array::read_f64(&dir.join(format!("{file}.npy"))).unwrap();
         assert_eq!(shape, [3, 4]);
         assert_eq!(cam.projection().concat(), p, "channel {channel}");
         assert_eq!(cam.centre()[..], centres[row * 3..row * 3 + 3]);
@@ -114,7 +114,7 @@ fn front_cameras_round_trip_points_near_the_origin() {
 #[test]
 fn pseudo_inverses_match_numpy() {
     let dir = dhp19::default_dir();
-    let (shape, pinv) = npy::read_f64(&fixtures().join("dhp19-pinv.npy")).unwrap();
+    let (shape, pinv) = array::read_f64(&fixtures().join("dhp19-pinv.npy")).unwrap();
     assert_eq!(shape, [4, 4, 3]);
     let mut worst = 0.0f64;
     for channel in 0..4u8 {
@@ -136,7 +136,7 @@ fn pseudo_inverses_match_numpy() {
 #[test]
 fn triangulation_matches_the_numpy_reference() {
     let (a, b) = front();
-    let (shape, rows) = npy::read_f64(&fixtures().join("dhp19-triangulation.npy")).unwrap();
+    let (shape, rows) = array::read_f64(&fixtures().join("dhp19-triangulation.npy")).unwrap();
     assert_eq!(shape, [64, 7]);
     let mut worst = 0.0f64;
     for (i, r) in rows.chunks_exact(7).enumerate() {

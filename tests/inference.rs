@@ -13,9 +13,9 @@
 
 use std::path::{Path, PathBuf};
 
-use evpose_host::cli::inference::argmax_agreement;
-use evpose_host::model::{self, quant, AlignedBlob, Logits, TractModel};
-use evpose_host::npy;
+use evpose_host::array;
+use evpose_host::model::{self, quantize, AlignedBlob, Logits, TractModel};
+use evpose_host::parity::argmax_agreement;
 use evpose_tests::{assert_close, assert_int8_core_equals_tract, fixtures, shared, street_windows};
 
 struct Case {
@@ -31,8 +31,9 @@ fn load_case(dir: &Path, model: &str, input: &str, key: &str) -> Case {
     let mut reference = Vec::new();
     for w in street_windows() {
         inputs.push(model::read_points(&dir.join(format!("{w}.{input}.npy"))).unwrap());
-        let (sx, x) = npy::read_exact::<f32>(&dir.join(format!("{w}.{key}.simdr_x.npy"))).unwrap();
-        let (_, y) = npy::read_exact::<f32>(&dir.join(format!("{w}.{key}.simdr_y.npy"))).unwrap();
+        let (sx, x) =
+            array::read_exact::<f32>(&dir.join(format!("{w}.{key}.simdr_x.npy"))).unwrap();
+        let (_, y) = array::read_exact::<f32>(&dir.join(format!("{w}.{key}.simdr_y.npy"))).unwrap();
         reference.push(Logits {
             joints: sx[0] as usize,
             x,
@@ -159,7 +160,8 @@ fn quantized_argmax_tracks_float_reasonably() {
     // Not a quality gate (the weights are random): a sanity floor that catches broken scales.
     let case = small();
     let net = model::import_onnx(&case.model).unwrap();
-    let q = quant::quantize(&net, &quant::calibrate(&net, &case.inputs[..3]).unwrap()).unwrap();
+    let q =
+        quantize::quantize(&net, &quantize::calibrate(&net, &case.inputs[..3]).unwrap()).unwrap();
     let blob = AlignedBlob::new(&q.blob().unwrap());
     let float = AlignedBlob::new(&model::f32_blob(&net).unwrap());
     let (mut close, mut total) = (0, 0);
@@ -199,7 +201,8 @@ fn int8_engine_gives_identical_integers_with_every_kernel_set() {
     use evpose_core::kernels::Kernels;
     let case = small();
     let net = model::import_onnx(&case.model).unwrap();
-    let q = quant::quantize(&net, &quant::calibrate(&net, &case.inputs[..1]).unwrap()).unwrap();
+    let q =
+        quantize::quantize(&net, &quantize::calibrate(&net, &case.inputs[..1]).unwrap()).unwrap();
     let blob = AlignedBlob::new(&q.blob().unwrap());
     let reference: Vec<_> = case.inputs[..3]
         .iter()
@@ -223,12 +226,11 @@ fn packed_int8_engine_gives_identical_integers_with_every_kernel_set_and_block()
     // packed reference elsewhere (so this runs on any CI machine), against the row-major
     // engine with the reference kernels.
     use evpose_core::kernels::Kernels;
-    use evpose_core::{
-        pack_point_layers, packed_bytes, run_i8_packed, run_i8_with, scratch_words_for_block, Model,
-    };
+    use evpose_core::{pack_point_layers, packed_bytes, scratch_words_for_block, Model, Plan};
     let case = small();
     let net = model::import_onnx(&case.model).unwrap();
-    let q = quant::quantize(&net, &quant::calibrate(&net, &case.inputs[..1]).unwrap()).unwrap();
+    let q =
+        quantize::quantize(&net, &quantize::calibrate(&net, &case.inputs[..1]).unwrap()).unwrap();
     let blob = AlignedBlob::new(&q.blob().unwrap());
     let m = Model::parse(blob.bytes()).unwrap();
     let mut buf = vec![0u8; packed_bytes(&m)];
@@ -238,21 +240,18 @@ fn packed_int8_engine_gives_identical_integers_with_every_kernel_set_and_block()
     let outputs = || (vec![0; 13 * 346], vec![0; 13 * 260]);
     let (mut wx, mut wy) = outputs();
     let words = scratch_words_for_block(&m, 1);
-    run_i8_with(
-        &Kernels::reference(),
-        &m,
-        input,
-        &mut vec![0; words],
-        &mut wx,
-        &mut wy,
-    )
-    .unwrap();
+    Plan::new(&m, Kernels::reference(), words)
+        .unwrap()
+        .run_i8(input, &mut vec![0; words], &mut wx, &mut wy)
+        .unwrap();
     let mut tested = Vec::new();
     for (_, k) in supported_kernel_sets() {
         for block in [1, 2, 5, 6, 7, 13, 24] {
             let (mut x, mut y) = outputs();
             let mut scratch = vec![0; scratch_words_for_block(&m, block)];
-            run_i8_packed(&k, &m, &packed, input, &mut scratch, &mut x, &mut y).unwrap();
+            let plan = Plan::packed(&m, k, &packed, scratch.len()).unwrap();
+            assert!(plan.is_packed() && plan.block() == block);
+            plan.run_i8(input, &mut scratch, &mut x, &mut y).unwrap();
             assert_eq!((&x, &y), (&wx, &wy), "{} block {block}", k.name());
         }
         tested.push(format!(
@@ -267,14 +266,12 @@ fn packed_int8_engine_gives_identical_integers_with_every_kernel_set_and_block()
 #[test]
 fn packed_weights_of_another_model_or_in_another_buffer_are_errors() {
     use evpose_core::kernels::Kernels;
-    use evpose_core::{
-        pack_point_layers, packed_bytes, run_i8_packed, scratch_words, InferError, Model,
-    };
+    use evpose_core::{pack_point_layers, packed_bytes, scratch_words, InferError, Model, Plan};
     let case = small();
     let net = model::import_onnx(&case.model).unwrap();
     let blob_of = |i: usize| {
-        let ranges = quant::calibrate(&net, &case.inputs[i..i + 1]).unwrap();
-        AlignedBlob::new(&quant::quantize(&net, &ranges).unwrap().blob().unwrap())
+        let ranges = quantize::calibrate(&net, &case.inputs[i..i + 1]).unwrap();
+        AlignedBlob::new(&quantize::quantize(&net, &ranges).unwrap().blob().unwrap())
     };
     let (a, b) = (blob_of(0), blob_of(1));
     let (ma, mb) = (
@@ -314,24 +311,32 @@ fn packed_weights_of_another_model_or_in_another_buffer_are_errors() {
     let input = &case.inputs[0][..10];
     let k = Kernels::detect();
     assert_eq!(
-        run_i8_packed(&k, &mb, &packed, input, &mut scratch, &mut x, &mut y),
-        Err(InferError::PackedModel)
+        Plan::packed(&mb, k, &packed, scratch.len()).unwrap_err(),
+        InferError::PackedModel
     );
-    run_i8_packed(&k, &ma, &packed, input, &mut scratch, &mut x, &mut y).unwrap();
+    Plan::packed(&ma, k, &packed, scratch.len())
+        .unwrap()
+        .run_i8(input, &mut scratch, &mut x, &mut y)
+        .unwrap();
 }
 
 #[test]
 fn int8_engine_gives_identical_integers_for_every_block_size() {
-    use evpose_core::{run_i8, scratch_words_for_block, Model};
+    use evpose_core::kernels::Kernels;
+    use evpose_core::{scratch_words_for_block, Model, Plan};
     let case = small();
     let net = model::import_onnx(&case.model).unwrap();
-    let q = quant::quantize(&net, &quant::calibrate(&net, &case.inputs[..1]).unwrap()).unwrap();
+    let q =
+        quantize::quantize(&net, &quantize::calibrate(&net, &case.inputs[..1]).unwrap()).unwrap();
     let blob = AlignedBlob::new(&q.blob().unwrap());
     let m = Model::parse(blob.bytes()).unwrap();
     let input = &case.inputs[4][..1000]; // 1000 points: not a multiple of most block sizes
     let run = |words: usize| {
         let (mut x, mut y) = (vec![0; 13 * 346], vec![0; 13 * 260]);
-        run_i8(&m, input, &mut vec![0; words], &mut x, &mut y).unwrap();
+        Plan::new(&m, Kernels::best(), words)
+            .unwrap()
+            .run_i8(input, &mut vec![0; words], &mut x, &mut y)
+            .unwrap();
         (x, y)
     };
     let one = run(scratch_words_for_block(&m, 1));
@@ -349,14 +354,17 @@ fn int8_engine_gives_identical_integers_for_every_block_size() {
 #[test]
 fn f32_engine_gives_identical_bits_with_every_kernel_set_and_block_size() {
     use evpose_core::kernels::Kernels;
-    use evpose_core::{run_f32_with, scratch_words_for_block, Model};
+    use evpose_core::{scratch_words_for_block, Model, Plan};
     let case = small();
     let blob = model::load_blob(&case.model).unwrap();
     let m = Model::parse(blob.bytes()).unwrap();
     let input = &case.inputs[4][..1000]; // 1000 points: not a multiple of most block sizes
     let run = |k: &Kernels, words: usize| {
         let (mut x, mut y) = (vec![0f32; 13 * 346], vec![0f32; 13 * 260]);
-        run_f32_with(k, &m, input, &mut vec![0.0; words], &mut x, &mut y).unwrap();
+        Plan::new(&m, *k, words)
+            .unwrap()
+            .run_f32(input, &mut vec![0.0; words], &mut x, &mut y)
+            .unwrap();
         let bits = |v: Vec<f32>| v.into_iter().map(f32::to_bits).collect::<Vec<_>>();
         (bits(x), bits(y))
     };

@@ -3,8 +3,8 @@
 use std::path::{Path, PathBuf};
 
 use evpose_core::simdr::argmax;
-use evpose_host::cli::inference::parity_report;
-use evpose_host::model::{self, quant, AlignedBlob, FloatNet, Logits};
+use evpose_host::model::{self, quantize, AlignedBlob, FloatNet, Logits};
+use evpose_host::parity;
 
 /// The bundled fixtures folder (`tests/fixtures`).
 pub fn fixtures() -> PathBuf {
@@ -63,8 +63,8 @@ pub fn assert_int8_core_equals_tract(
     inputs: &[Vec<[f32; 5]>],
     tag: &str,
 ) -> (usize, usize) {
-    let q = quant::calibrate(net, calib)
-        .and_then(|ranges| quant::quantize(net, &ranges))
+    let q = quantize::calibrate(net, calib)
+        .and_then(|ranges| quantize::quantize(net, &ranges))
         .unwrap_or_else(|e| panic!("{tag}: quantization failed: {e:#}"));
     let blob = AlignedBlob::new(&q.blob().unwrap());
     let file: String = tag
@@ -74,7 +74,7 @@ pub fn assert_int8_core_equals_tract(
     let onnx = std::env::temp_dir().join(format!("evpose-{file}-{}.q.onnx", std::process::id()));
     std::fs::write(&onnx, q.onnx().unwrap()).unwrap();
     let float = AlignedBlob::new(&model::f32_blob(net).unwrap());
-    let r = parity_report(&blob, &onnx, inputs, Some(&float));
+    let r = parity::report(&blob, &onnx, inputs, Some(&float));
     std::fs::remove_file(&onnx).ok();
     let r = r.unwrap_or_else(|e| panic!("{tag}: int8 parity run failed: {e:#}"));
     assert_eq!(r.mismatches, 0, "{tag}: core int8 != tract: {r:?}");

@@ -19,8 +19,8 @@ use std::collections::BTreeSet;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::PathBuf;
 
+use evpose_host::array;
 use evpose_host::model::{self, AlignedBlob, FloatNet, Logits, TractModel};
-use evpose_host::npy;
 use evpose_tests::{assert_close, assert_int8_core_equals_tract, fixtures};
 use serde_json::Value;
 
@@ -74,7 +74,7 @@ impl Entry {
     /// onnxruntime's outputs, `(1, J, W)` and `(1, J, H)`.
     fn reference(&self) -> Logits<f32> {
         let read = |axis: &str, n: usize| {
-            let (shape, v) = npy::read_exact::<f32>(&self.path(&format!("simdr_{axis}.npy")))
+            let (shape, v) = array::read_exact::<f32>(&self.path(&format!("simdr_{axis}.npy")))
                 .unwrap_or_else(|e| panic!("{}: simdr_{axis}: {e:#}", self.tag()));
             assert_eq!(
                 shape,

@@ -1,14 +1,18 @@
 //! The rasterizer, through the CLI's code path, against the reference rasterization of real
 //! DAVIS346 windows: x, y, p_acc and cnt exactly; t_avg within 1e-6 (in practice bit-exact).
 
-use evpose_host::npy;
+use evpose_host::array;
+use evpose_host::io::OpenOptions;
 use evpose_host::pipeline::{rasterize, window_rows, RasterOptions};
 use evpose_tests::{fixtures, street_windows};
 
 #[test]
 fn street_windows_match_the_reference_rasterization() {
     let opts = RasterOptions {
-        size: Some((346, 260)),
+        open: OpenOptions {
+            size: Some((346, 260)),
+            ..OpenOptions::default()
+        },
         ..RasterOptions::default()
     };
     let mut t_exact = 0usize;
@@ -16,7 +20,7 @@ fn street_windows_match_the_reference_rasterization() {
     for name in street_windows() {
         let events = fixtures().join(format!("{name}.events.npy"));
         let (shape, want) =
-            npy::read_exact::<f32>(&fixtures().join(format!("{name}.points.npy"))).unwrap();
+            array::read_exact::<f32>(&fixtures().join(format!("{name}.points.npy"))).unwrap();
         let mut got = Vec::new();
         let report = rasterize(&events, &opts, |_, w| {
             got = window_rows(w);
@@ -51,13 +55,16 @@ fn windowed_rasterization_of_the_concatenated_stream_gives_the_same_windows() {
     let dir = tempfile_dir();
     let mut all = Vec::new();
     for name in street_windows() {
-        let (_, v) = npy::read_f64(&fixtures().join(format!("{name}.events.npy"))).unwrap();
+        let (_, v) = array::read_f64(&fixtures().join(format!("{name}.events.npy"))).unwrap();
         all.extend(v);
     }
     let joined = dir.join("joined.npy");
-    npy::write(&joined, &[(all.len() / 4) as u64, 4], &all).unwrap();
+    array::write(&joined, &[(all.len() / 4) as u64, 4], &all).unwrap();
     let opts = RasterOptions {
-        size: Some((346, 260)),
+        open: OpenOptions {
+            size: Some((346, 260)),
+            ..OpenOptions::default()
+        },
         window_events: Some(7_500),
         ..RasterOptions::default()
     };
@@ -70,7 +77,7 @@ fn windowed_rasterization_of_the_concatenated_stream_gives_the_same_windows() {
     assert_eq!(got.len(), 10);
     for (name, rows) in street_windows().iter().zip(&got) {
         let (_, want) =
-            npy::read_exact::<f32>(&fixtures().join(format!("{name}.points.npy"))).unwrap();
+            array::read_exact::<f32>(&fixtures().join(format!("{name}.points.npy"))).unwrap();
         assert_eq!(rows.as_flattened(), &want[..], "{name}");
     }
 }

@@ -1,4 +1,5 @@
-//! Inference: the f32 and int8 engines over one [`Model`] description.
+//! Inference: the f32 and int8 engines over one [`Model`] description, planned once
+//! ([`Plan`]) and run many times.
 //!
 //! Points go through all point layers in blocks (as many points as the lent scratch holds, up
 //! to [`MAX_BLOCK`]; one on an MCU), and the last point layer is reduced on the fly into a
@@ -13,8 +14,8 @@ use core::fmt;
 
 use crate::kernels::packed::{packed_len, PackedI8};
 use crate::kernels::Kernels;
-use crate::model::{Bias, DType, Layer, LayerKind, Model, Weights, FEATURES};
-use crate::quant::{self, InputCoding};
+use crate::model::{Bias, DType, Layer, LayerKind, Model, Weights, FEATURES, MAX_POINT_LAYERS};
+use crate::quant::{self, InputCoding, Requant};
 
 /// Why an inference did not run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -110,7 +111,7 @@ pub fn scratch_words_for_block(model: &Model<'_>, block: usize) -> usize {
     }
 }
 
-/// The largest block whose scratch fits in `words` (1 if none does; [`check_args`] refuses
+/// The largest block whose scratch fits in `words` (1 if none does; [`Plan::new`] refuses
 /// that case first).
 fn block_for(model: &Model<'_>, words: usize) -> usize {
     (1..=MAX_BLOCK)
@@ -134,8 +135,8 @@ fn widest_layer(model: &Model<'_>) -> usize {
 }
 
 /// Byte offset of each point layer's output in the activation buffer, and the buffer width.
-fn layer_offsets(model: &Model<'_>) -> ([usize; crate::model::MAX_POINT_LAYERS + 1], usize) {
-    let mut offs = [0; crate::model::MAX_POINT_LAYERS + 1];
+fn layer_offsets(model: &Model<'_>) -> ([usize; MAX_POINT_LAYERS + 1], usize) {
+    let mut offs = [0; MAX_POINT_LAYERS + 1];
     for i in 0..model.point_layer_count() {
         offs[i + 1] = offs[i] + model.layer(i).desc.out_dim as usize;
     }
@@ -150,40 +151,6 @@ fn source_range(sources: u32, offs: &[usize]) -> core::ops::Range<usize> {
     offs[first - 1]..offs[last]
 }
 
-/// The checks both engines make before touching any buffer.
-fn check_args(
-    model: &Model<'_>,
-    dtype: DType,
-    points: &[[f32; FEATURES]],
-    (x, y): (usize, usize),
-    scratch: usize,
-) -> Result<(), InferError> {
-    if model.dtype() != dtype {
-        return Err(InferError::DType);
-    }
-    if points.is_empty() {
-        return Err(InferError::NoPoints);
-    }
-    let (nx, ny) = (
-        model.joints() * model.width(),
-        model.joints() * model.height(),
-    );
-    if x != nx {
-        return Err(InferError::Output { needed: nx, got: x });
-    }
-    if y != ny {
-        return Err(InferError::Output { needed: ny, got: y });
-    }
-    let needed = scratch_words(model);
-    if scratch < needed {
-        return Err(InferError::Scratch {
-            needed,
-            got: scratch,
-        });
-    }
-    Ok(())
-}
-
 /// An intermediate result of the f32 engine, handed to an observer (calibration).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -196,137 +163,414 @@ pub enum Stage {
     Fc(usize),
 }
 
-/// Runs the f32 engine on `points` (rows `[x, y, t_avg, p_acc, cnt]`), writing the x logits
-/// (`J × W`) and y logits (`J × H`), with the kernels chosen at compile time
-/// ([`Kernels::best`]).
-pub fn run_f32(
-    model: &Model<'_>,
-    points: &[[f32; FEATURES]],
-    scratch: &mut [f32],
-    out_x: &mut [f32],
-    out_y: &mut [f32],
-) -> Result<(), InferError> {
-    run_f32_with(&Kernels::best(), model, points, scratch, out_x, out_y)
-}
-
-/// [`run_f32`] with a kernel table, e.g. [`Kernels::detect`] for the CPU it runs on. Every
-/// table gives the same bits (the f32 kernel sums in a fixed order), and so does every block
-/// size.
-pub fn run_f32_with(
-    k: &Kernels,
-    model: &Model<'_>,
-    points: &[[f32; FEATURES]],
-    scratch: &mut [f32],
-    out_x: &mut [f32],
-    out_y: &mut [f32],
-) -> Result<(), InferError> {
-    run_f32_observed(k, model, points, scratch, out_x, out_y, |_, _| {})
-}
-
-/// Weights of one row tile of an f32 point layer: every point of a block goes through the
-/// tile while it is in L1 (16 KiB), instead of each point streaming the whole layer from
-/// memory (the paper model's point layers are 2.3 MB in f32).
+/// Weights of one f32 point layer, tile after tile of rows kept in L1 (16 KiB): every point
+/// of a block goes through a tile while it is in cache, instead of each point streaming the
+/// whole layer from memory (the paper model's point layers are 2.3 MB in f32).
 const F32_TILE_WEIGHTS: usize = 4096;
 
-/// [`run_f32_with`], calling `observe` with every intermediate activation vector (per point
-/// for the point layers, in no particular order of points).
-pub fn run_f32_observed(
-    k: &Kernels,
-    model: &Model<'_>,
-    points: &[[f32; FEATURES]],
-    scratch: &mut [f32],
-    out_x: &mut [f32],
-    out_y: &mut [f32],
-    mut observe: impl FnMut(Stage, &[f32]),
-) -> Result<(), InferError> {
-    check_args(
-        model,
-        DType::F32,
-        points,
-        (out_x.len(), out_y.len()),
-        scratch.len(),
-    )?;
-    let (offs, acts_len) = layer_offsets(model);
-    let pooled = model.pooled_width() as usize;
-    let last = model.point_layer_count() - 1;
-    let block = block_for(model, scratch.len());
-    let (inputs, rest) = scratch.split_at_mut(block * FEATURES);
-    let (acts, rest) = rest.split_at_mut(block * acts_len);
-    let (max, rest) = rest.split_at_mut(pooled);
-    let (sum, fc) = rest.split_at_mut(pooled);
-    max.fill(f32::NEG_INFINITY);
-    sum.fill(0.0);
-    for chunk in points.chunks(block) {
-        let n = chunk.len();
-        for (dst, p) in inputs.chunks_exact_mut(FEATURES).zip(chunk) {
-            dst.copy_from_slice(p);
+/// An inference plan (TensorFlow Lite Micro's Prepare, for the whole network): built once from
+/// a parsed [`Model`], a kernel table, optional packed weights and the size of the scratch the
+/// caller will lend. It fixes the engine (f32 or int8, from the model), the block of points per
+/// pass over the point layers (the largest the scratch holds, up to [`MAX_BLOCK`]), every
+/// layer's typed arrays, input range and requantization ([`Requant`]).
+///
+/// Running ([`Plan::run_f32`], [`Plan::run_i8`]) then only checks the lengths of the buffers it
+/// is given: everything else was checked here.
+///
+/// ```
+/// # fn demo(blob: &[u8]) -> Result<(), Box<dyn core::error::Error>> {
+/// use evpose_core::{kernels::Kernels, scratch_words_for_block, Model, Plan};
+/// let model = Model::parse(blob)?;
+/// let mut scratch = vec![0i32; scratch_words_for_block(&model, 8)];
+/// let plan = Plan::new(&model, Kernels::best(), scratch.len())?;
+/// let points = [[1.0, 2.0, 0.5, 1.0, 1.0]; 16];
+/// let (mut x, mut y) = (vec![0; plan.out_x_len()], vec![0; plan.out_y_len()]);
+/// plan.run_i8(&points, &mut scratch, &mut x, &mut y)?;
+/// # Ok(()) }
+/// ```
+///
+/// A plan is small (a few hundred bytes: it borrows the model and the packed weights), so an
+/// MCU keeps it on its stack.
+#[derive(Clone, Copy, Debug)]
+pub struct Plan<'m> {
+    model: &'m Model<'m>,
+    kernels: Kernels,
+    packed: Option<&'m PackedWeights<'m>>,
+    block: usize,
+    /// Scratch words `block` needs.
+    scratch: usize,
+    /// Width of one point's activation row (all point layers' outputs side by side).
+    acts_len: usize,
+    /// Offset of each point layer's output in the activation row.
+    offs: [usize; MAX_POINT_LAYERS + 1],
+}
+
+impl<'m> Plan<'m> {
+    /// Plans `model` with the kernels `kernels` for a scratch of `scratch_words` 32-bit words
+    /// (at least [`scratch_words`]; more lets the engine process more points per pass).
+    pub fn new(
+        model: &'m Model<'m>,
+        kernels: Kernels,
+        scratch_words: usize,
+    ) -> Result<Self, InferError> {
+        Self::build(model, kernels, None, scratch_words)
+    }
+
+    /// [`Plan::new`] for an int8 model whose point layers were packed
+    /// ([`pack_point_layers`], [`PackedLayout::weights`]) for [`Kernels::matmat_packed_i8`]:
+    /// the same integers, faster where `kernels` has a native packed kernel
+    /// ([`Kernels::has_packed`]).
+    pub fn packed(
+        model: &'m Model<'m>,
+        kernels: Kernels,
+        packed: &'m PackedWeights<'m>,
+        scratch_words: usize,
+    ) -> Result<Self, InferError> {
+        if packed.checksum != model.checksum() {
+            return Err(InferError::PackedModel);
         }
-        for i in 0..=last {
+        Self::build(model, kernels, Some(packed), scratch_words)
+    }
+
+    fn build(
+        model: &'m Model<'m>,
+        kernels: Kernels,
+        packed: Option<&'m PackedWeights<'m>>,
+        scratch_words: usize,
+    ) -> Result<Self, InferError> {
+        let needed = scratch_words_for_block(model, 1);
+        if scratch_words < needed {
+            return Err(InferError::Scratch {
+                needed,
+                got: scratch_words,
+            });
+        }
+        // Every layer's arrays must be of the engine's types, and packed weights must fit
+        // their layers: then running cannot meet anything else.
+        for i in 0..model.layer_count() {
             let l = model.layer(i);
-            let (Weights::F32(w), Bias::F32(b)) = (l.weights, l.bias) else {
-                return Err(InferError::DType);
+            let fits = match (model.dtype(), l.weights, l.bias) {
+                (DType::F32, Weights::F32(_), Bias::F32(_)) => true,
+                (DType::I8, Weights::I16(_), Bias::I32(_)) => i < model.point_layer_count(),
+                (DType::I8, Weights::I8(_), Bias::I32(_)) => true,
+                _ => false,
             };
-            let (k_in, out_dim) = (l.desc.in_dim as usize, l.desc.out_dim as usize);
-            let tile = (F32_TILE_WEIGHTS / k_in.max(1)).max(1);
-            for r0 in (0..out_dim).step_by(tile) {
-                let rows = r0..(r0 + tile).min(out_dim);
-                let (w, b) = (&w[rows.start * k_in..rows.end * k_in], &b[rows.clone()]);
-                for (input, act) in inputs
-                    .chunks_exact(FEATURES)
-                    .zip(acts.chunks_exact_mut(acts_len))
-                    .take(n)
-                {
-                    // A layer reads the input features or earlier layers' outputs (before
-                    // its own in the row).
-                    let (before, after) = act.split_at_mut(offs[i]);
-                    let x: &[f32] = if l.desc.sources == 1 {
-                        input
-                    } else {
-                        &before[source_range(l.desc.sources, &offs)]
-                    };
-                    k.matvec_f32(w, x, b, &mut after[rows.clone()]);
+            if !fits {
+                return Err(InferError::DType);
+            }
+        }
+        if let Some(p) = packed {
+            for i in 0..model.point_layer_count() {
+                let l = model.layer(i);
+                if let (Weights::I8(_), w) = (l.weights, p.layers[i]) {
+                    let (rows, k) = (l.desc.out_dim as usize, l.desc.in_dim as usize);
+                    if !w.is_some_and(|w| w.rows() == rows && w.k() == k) {
+                        return Err(InferError::PackedModel);
+                    }
                 }
             }
-            for act in acts.chunks_exact_mut(acts_len).take(n) {
-                let out = &mut act[offs[i]..offs[i + 1]];
-                leaky_f32(out, l.desc.leaky);
-                observe(Stage::Point(i), out);
+        }
+        let block = block_for(model, scratch_words);
+        let (offs, acts_len) = layer_offsets(model);
+        Ok(Self {
+            model,
+            kernels,
+            packed,
+            block,
+            scratch: scratch_words_for_block(model, block),
+            acts_len,
+            offs,
+        })
+    }
+
+    /// The planned model.
+    pub fn model(&self) -> &'m Model<'m> {
+        self.model
+    }
+
+    /// The kernel table the plan runs with.
+    pub fn kernels(&self) -> &Kernels {
+        &self.kernels
+    }
+
+    /// Points per pass over the point layers' weights.
+    pub fn block(&self) -> usize {
+        self.block
+    }
+
+    /// Scratch words a run needs (for [`Plan::block`] points per pass).
+    pub fn scratch_words(&self) -> usize {
+        self.scratch
+    }
+
+    /// Whether the int8 point layers run over packed weights.
+    pub fn is_packed(&self) -> bool {
+        self.packed.is_some()
+    }
+
+    /// Length of the x output, `J × W`.
+    pub fn out_x_len(&self) -> usize {
+        self.model.joints() * self.model.width()
+    }
+
+    /// Length of the y output, `J × H`.
+    pub fn out_y_len(&self) -> usize {
+        self.model.joints() * self.model.height()
+    }
+
+    /// The checks of a run: buffer lengths only.
+    fn check(
+        &self,
+        points: usize,
+        scratch: usize,
+        (x, y): (usize, usize),
+    ) -> Result<(), InferError> {
+        if points == 0 {
+            return Err(InferError::NoPoints);
+        }
+        let (nx, ny) = (self.out_x_len(), self.out_y_len());
+        if x != nx {
+            return Err(InferError::Output { needed: nx, got: x });
+        }
+        if y != ny {
+            return Err(InferError::Output { needed: ny, got: y });
+        }
+        if scratch < self.scratch {
+            return Err(InferError::Scratch {
+                needed: self.scratch,
+                got: scratch,
+            });
+        }
+        Ok(())
+    }
+
+    /// Runs an f32 plan on `points` (rows `[x, y, t_avg, p_acc, cnt]`), writing the x logits
+    /// (`J × W`) and y logits (`J × H`). Every kernel table and every block size give the same
+    /// bits (the f32 kernel sums in a fixed order). [`InferError::DType`] for an int8 plan.
+    pub fn run_f32(
+        &self,
+        points: &[[f32; FEATURES]],
+        scratch: &mut [f32],
+        out_x: &mut [f32],
+        out_y: &mut [f32],
+    ) -> Result<(), InferError> {
+        self.run_f32_observed(points, scratch, out_x, out_y, |_, _| {})
+    }
+
+    /// [`Plan::run_f32`], calling `observe` with every intermediate activation vector (per
+    /// point for the point layers, in no particular order of points).
+    pub fn run_f32_observed(
+        &self,
+        points: &[[f32; FEATURES]],
+        scratch: &mut [f32],
+        out_x: &mut [f32],
+        out_y: &mut [f32],
+        mut observe: impl FnMut(Stage, &[f32]),
+    ) -> Result<(), InferError> {
+        if self.model.dtype() != DType::F32 {
+            return Err(InferError::DType);
+        }
+        self.check(points.len(), scratch.len(), (out_x.len(), out_y.len()))?;
+        let (m, k, offs, acts_len) = (self.model, &self.kernels, &self.offs, self.acts_len);
+        let pooled = m.pooled_width() as usize;
+        let last = m.point_layer_count() - 1;
+        let block = self.block;
+        let (inputs, rest) = scratch.split_at_mut(block * FEATURES);
+        let (acts, rest) = rest.split_at_mut(block * acts_len);
+        let (max, rest) = rest.split_at_mut(pooled);
+        let (sum, fc) = rest.split_at_mut(pooled);
+        max.fill(f32::NEG_INFINITY);
+        sum.fill(0.0);
+        for chunk in points.chunks(block) {
+            let n = chunk.len();
+            for (dst, p) in inputs.chunks_exact_mut(FEATURES).zip(chunk) {
+                dst.copy_from_slice(p);
+            }
+            for i in 0..=last {
+                let l = m.layer(i);
+                let (Weights::F32(w), Bias::F32(b)) = (l.weights, l.bias) else {
+                    return Err(InferError::DType); // ruled out by the plan
+                };
+                let (k_in, out_dim) = (l.desc.in_dim as usize, l.desc.out_dim as usize);
+                let tile = (F32_TILE_WEIGHTS / k_in.max(1)).max(1);
+                for r0 in (0..out_dim).step_by(tile) {
+                    let rows = r0..(r0 + tile).min(out_dim);
+                    let (w, b) = (&w[rows.start * k_in..rows.end * k_in], &b[rows.clone()]);
+                    for (input, act) in inputs
+                        .chunks_exact(FEATURES)
+                        .zip(acts.chunks_exact_mut(acts_len))
+                        .take(n)
+                    {
+                        // A layer reads the input features or earlier layers' outputs (before
+                        // its own in the row).
+                        let (before, after) = act.split_at_mut(offs[i]);
+                        let x: &[f32] = if l.desc.sources == 1 {
+                            input
+                        } else {
+                            &before[source_range(l.desc.sources, offs)]
+                        };
+                        k.matvec_f32(w, x, b, &mut after[rows.clone()]);
+                    }
+                }
+                for act in acts.chunks_exact_mut(acts_len).take(n) {
+                    let out = &mut act[offs[i]..offs[i + 1]];
+                    leaky_f32(out, l.desc.leaky);
+                    observe(Stage::Point(i), out);
+                }
+            }
+            for act in acts.chunks_exact(acts_len).take(n) {
+                for ((m, s), &v) in max
+                    .iter_mut()
+                    .zip(sum.iter_mut())
+                    .zip(&act[offs[last]..offs[last + 1]])
+                {
+                    *m = m.max(v);
+                    *s += v;
+                }
             }
         }
-        for act in acts.chunks_exact(acts_len).take(n) {
-            for ((m, s), &v) in max
-                .iter_mut()
-                .zip(sum.iter_mut())
-                .zip(&act[offs[last]..offs[last + 1]])
-            {
-                *m = m.max(v);
-                *s += v;
+        let (a, b) = fc.split_at_mut((2 * pooled).max(m.widest_fc()));
+        a[..pooled].copy_from_slice(max);
+        let n = points.len() as f32;
+        for (dst, &s) in a[pooled..2 * pooled].iter_mut().zip(sum.iter()) {
+            *dst = s / n;
+        }
+        observe(Stage::Pooled, &a[..2 * pooled]);
+        let feats = fc_chain(m, (a, b), 2 * pooled, |i, l, x, out| {
+            let (Weights::F32(w), Bias::F32(bias)) = (l.weights, l.bias) else {
+                return Err(InferError::DType);
+            };
+            k.matvec_f32(w, x, bias, out);
+            leaky_f32(out, l.desc.leaky);
+            observe(Stage::Fc(i), out);
+            Ok(())
+        })?;
+        heads(m, feats, out_x, out_y, |l, f, dst| {
+            let (Weights::F32(w), Bias::F32(bias)) = (l.weights, l.bias) else {
+                return Err(InferError::DType);
+            };
+            k.matvec_f32(w, f, bias, dst);
+            Ok(())
+        })
+    }
+
+    /// Runs an int8 plan on `points`, writing the heads' int32 accumulators (bias included):
+    /// x (`J × W`) and y (`J × H`); their argmax is the argmax of the dequantized logits. Every
+    /// kernel table, block size and weight layout gives the same integers (the kernels are
+    /// bit-exact with the reference). [`InferError::DType`] for an f32 plan.
+    pub fn run_i8(
+        &self,
+        points: &[[f32; FEATURES]],
+        scratch: &mut [i32],
+        out_x: &mut [i32],
+        out_y: &mut [i32],
+    ) -> Result<(), InferError> {
+        if self.model.dtype() != DType::I8 {
+            return Err(InferError::DType);
+        }
+        self.check(points.len(), scratch.len(), (out_x.len(), out_y.len()))?;
+        let (m, k, offs, acts_len) = (self.model, &self.kernels, &self.offs, self.acts_len);
+        let coding = InputCoding {
+            shifts: m.input_shifts(),
+        };
+        let pooled = m.pooled_width() as usize;
+        let last = m.point_layer_count() - 1;
+        let block = self.block;
+        let (sum, rest) = scratch.split_at_mut(pooled);
+        let (acc, bytes) = rest.split_at_mut(block * widest_layer(m));
+        let bytes: &mut [i8] = bytemuck::cast_slice_mut(bytes);
+        let (input_bytes, bytes) = bytes.split_at_mut(16 * block);
+        let inputs: &mut [i16] = bytemuck::cast_slice_mut(input_bytes);
+        let (acts, bytes) = bytes.split_at_mut(block * acts_len);
+        let (gathered, fc) = bytes.split_at_mut(block * widest_input(m));
+        let (a, b) = fc.split_at_mut((2 * pooled).max(m.widest_fc()));
+        let (max, _) = a.split_at_mut(pooled);
+        max.fill(i8::MIN);
+        sum.fill(0);
+        for chunk in points.chunks(block) {
+            let n = chunk.len();
+            for (dst, p) in inputs.chunks_exact_mut(8).zip(chunk) {
+                dst[..FEATURES].copy_from_slice(&coding.code(p));
+            }
+            for i in 0..=last {
+                let l = m.layer(i);
+                let Bias::I32(bias) = l.bias else {
+                    return Err(InferError::DType); // ruled out by the plan
+                };
+                let (k_in, out_dim) = (l.desc.in_dim as usize, l.desc.out_dim as usize);
+                let acc = &mut acc[..n * out_dim];
+                let packed = self.packed.and_then(|p| p.layers[i]);
+                match (l.weights, packed) {
+                    (Weights::I16(w), _) => {
+                        for (x, acc) in inputs.chunks_exact(8).zip(acc.chunks_exact_mut(out_dim)) {
+                            k.matvec_i16(w, &x[..FEATURES], bias, acc);
+                        }
+                    }
+                    // The sources are a contiguous run of each point's activation row: read
+                    // them in place, rows `acts_len` apart.
+                    (Weights::I8(_), Some(w)) => {
+                        let src = source_range(l.desc.sources, offs);
+                        k.matmat_packed_i8(&w, &acts[src.start..], acts_len, n, bias, acc, out_dim);
+                    }
+                    // One point (an MCU's block): read the sources in place, no copy.
+                    (Weights::I8(w), None) if n == 1 => {
+                        k.matvec_i8(w, &acts[source_range(l.desc.sources, offs)], bias, acc);
+                    }
+                    // Gather each point's sources into rows of K, then one pass over the
+                    // weights for the whole block.
+                    (Weights::I8(w), None) => {
+                        let src = source_range(l.desc.sources, offs);
+                        for (row, act) in gathered
+                            .chunks_exact_mut(k_in)
+                            .zip(acts.chunks_exact(acts_len))
+                            .take(n)
+                        {
+                            row.copy_from_slice(&act[src.clone()]);
+                        }
+                        k.matmat_i8(w, k_in, &gathered[..n * k_in], bias, acc, out_dim);
+                    }
+                    (Weights::F32(_), _) => return Err(InferError::DType),
+                }
+                let requant = Requant {
+                    scales: l.scales,
+                    leaky: l.desc.leaky,
+                };
+                for (row, act) in acc
+                    .chunks_exact(out_dim)
+                    .zip(acts.chunks_exact_mut(acts_len))
+                {
+                    k.requantize(row, requant, &mut act[offs[i]..offs[i] + out_dim]);
+                }
+            }
+            for act in acts.chunks_exact(acts_len).take(n) {
+                k.pool_i8(max, sum, &act[offs[last]..offs[last + 1]]);
             }
         }
+        let n = points.len() as u32;
+        for (dst, &s) in a[pooled..2 * pooled].iter_mut().zip(sum.iter()) {
+            *dst = quant::average(s, n, m.avg_scale());
+        }
+        let feats = fc_chain(m, (a, b), 2 * pooled, |_, l, x, out| {
+            let (Weights::I8(w), Bias::I32(bias)) = (l.weights, l.bias) else {
+                return Err(InferError::DType);
+            };
+            let acc = &mut acc[..out.len()];
+            k.matvec_i8(w, x, bias, acc);
+            let requant = Requant {
+                scales: l.scales,
+                leaky: l.desc.leaky,
+            };
+            k.requantize(acc, requant, out);
+            Ok(())
+        })?;
+        heads(m, feats, out_x, out_y, |l, f, dst| {
+            let (Weights::I8(w), Bias::I32(bias)) = (l.weights, l.bias) else {
+                return Err(InferError::DType);
+            };
+            k.matvec_i8(w, f, bias, dst);
+            Ok(())
+        })
     }
-    let (a, b) = fc.split_at_mut((2 * pooled).max(model.widest_fc()));
-    a[..pooled].copy_from_slice(max);
-    let n = points.len() as f32;
-    for (dst, &s) in a[pooled..2 * pooled].iter_mut().zip(sum.iter()) {
-        *dst = s / n;
-    }
-    observe(Stage::Pooled, &a[..2 * pooled]);
-    let feats = fc_chain(model, (a, b), 2 * pooled, |i, l, x, out| {
-        let (Weights::F32(w), Bias::F32(bias)) = (l.weights, l.bias) else {
-            return Err(InferError::DType);
-        };
-        k.matvec_f32(w, x, bias, out);
-        leaky_f32(out, l.desc.leaky);
-        observe(Stage::Fc(i), out);
-        Ok(())
-    })?;
-    heads(model, feats, out_x, out_y, |l, f, dst| {
-        let (Weights::F32(w), Bias::F32(bias)) = (l.weights, l.bias) else {
-            return Err(InferError::DType);
-        };
-        k.matvec_f32(w, f, bias, dst);
-        Ok(())
-    })
 }
 
 /// The FC layers after pooling, ping-ponging between `a` (which holds the first `width`
@@ -406,15 +650,15 @@ pub fn packed_bytes(model: &Model<'_>) -> usize {
 
 /// Where [`pack_point_layers`] put each int8 point layer's packed weights (see
 /// [`kernels::packed`]) in the caller's buffer. Small and `Copy`: keep it next to the buffer,
-/// and get the weights back for [`run_i8_packed`] with [`PackedLayout::weights`].
+/// and get the weights back for [`Plan::packed`] with [`PackedLayout::weights`].
 ///
 /// Packing is for CPUs with a native packed kernel ([`Kernels::has_packed`]: x86 AVX-512
 /// VNNI). It doubles the point layers' weight memory, so an MCU runs the blob's row-major
-/// weights in place with [`run_i8`] instead.
+/// weights in place with [`Plan::run_i8`] instead.
 #[derive(Clone, Copy, Debug)]
 pub struct PackedLayout {
     /// `(start, len)` of each point layer's packed weights in the buffer (len 0: not packed).
-    layers: [(usize, usize); crate::model::MAX_POINT_LAYERS],
+    layers: [(usize, usize); MAX_POINT_LAYERS],
     /// The model's blob checksum, to refuse packed weights of another model.
     checksum: u32,
     /// Address and length of the buffer packed into, to refuse any other buffer.
@@ -436,7 +680,7 @@ impl PackedLayout {
         if self.buffer != (buf.as_ptr() as usize, buf.len()) {
             return Err(InferError::PackedBuffer);
         }
-        let mut layers = [None; crate::model::MAX_POINT_LAYERS];
+        let mut layers = [None; MAX_POINT_LAYERS];
         for (i, (slot, &(start, len))) in layers.iter_mut().zip(&self.layers).enumerate() {
             if len > 0 {
                 let l = model.layer(i);
@@ -456,11 +700,11 @@ impl PackedLayout {
     }
 }
 
-/// A model's packed point-layer weights, ready for [`run_i8_packed`] (from
+/// A model's packed point-layer weights, ready for [`Plan::packed`] (from
 /// [`PackedLayout::weights`]).
 #[derive(Clone, Copy, Debug)]
 pub struct PackedWeights<'b> {
-    layers: [Option<PackedI8<'b>>; crate::model::MAX_POINT_LAYERS],
+    layers: [Option<PackedI8<'b>>; MAX_POINT_LAYERS],
     checksum: u32,
 }
 
@@ -474,7 +718,7 @@ pub fn pack_point_layers(model: &Model<'_>, buf: &mut [u8]) -> Result<PackedLayo
         return Err(InferError::PackBuffer { needed, got });
     }
     let mut at = buf.as_ptr().align_offset(PACK_ALIGN).min(PACK_ALIGN - 1);
-    let mut layers = [(0, 0); crate::model::MAX_POINT_LAYERS];
+    let mut layers = [(0, 0); MAX_POINT_LAYERS];
     for (i, slot) in layers
         .iter_mut()
         .enumerate()
@@ -495,171 +739,6 @@ pub fn pack_point_layers(model: &Model<'_>, buf: &mut [u8]) -> Result<PackedLayo
         layers,
         checksum: model.checksum(),
         buffer: (buf.as_ptr() as usize, got),
-    })
-}
-
-/// Runs the int8 engine on `points`, writing the heads' int32 accumulators (bias included):
-/// x (`J × W`) and y (`J × H`), with the kernels chosen at compile time ([`Kernels::best`]).
-pub fn run_i8(
-    model: &Model<'_>,
-    points: &[[f32; FEATURES]],
-    scratch: &mut [i32],
-    out_x: &mut [i32],
-    out_y: &mut [i32],
-) -> Result<(), InferError> {
-    run_i8_with(&Kernels::best(), model, points, scratch, out_x, out_y)
-}
-
-/// [`run_i8`] with a kernel table, e.g. [`Kernels::detect`] for the CPU it runs on. Every table
-/// gives the same integers (the kernels are bit-exact with the reference).
-pub fn run_i8_with(
-    k: &Kernels,
-    model: &Model<'_>,
-    points: &[[f32; FEATURES]],
-    scratch: &mut [i32],
-    out_x: &mut [i32],
-    out_y: &mut [i32],
-) -> Result<(), InferError> {
-    run_i8_impl(k, model, None, points, scratch, out_x, out_y)
-}
-
-/// [`run_i8_with`] with the point layers' weights pre-packed ([`pack_point_layers`],
-/// [`PackedLayout::weights`]) for [`Kernels::matmat_packed_i8`]: the same integers, faster
-/// where the table has a native packed kernel ([`Kernels::has_packed`]).
-pub fn run_i8_packed(
-    k: &Kernels,
-    model: &Model<'_>,
-    packed: &PackedWeights<'_>,
-    points: &[[f32; FEATURES]],
-    scratch: &mut [i32],
-    out_x: &mut [i32],
-    out_y: &mut [i32],
-) -> Result<(), InferError> {
-    if packed.checksum != model.checksum() {
-        return Err(InferError::PackedModel);
-    }
-    run_i8_impl(k, model, Some(packed), points, scratch, out_x, out_y)
-}
-
-fn run_i8_impl(
-    k: &Kernels,
-    model: &Model<'_>,
-    packed: Option<&PackedWeights<'_>>,
-    points: &[[f32; FEATURES]],
-    scratch: &mut [i32],
-    out_x: &mut [i32],
-    out_y: &mut [i32],
-) -> Result<(), InferError> {
-    check_args(
-        model,
-        DType::I8,
-        points,
-        (out_x.len(), out_y.len()),
-        scratch.len(),
-    )?;
-    let coding = InputCoding {
-        shifts: model.input_shifts(),
-    };
-    let (offs, acts_len) = layer_offsets(model);
-    let pooled = model.pooled_width() as usize;
-    let last = model.point_layer_count() - 1;
-    let widest = widest_layer(model);
-    let widest_in = widest_input(model);
-    let block = block_for(model, scratch.len());
-    let (sum, rest) = scratch.split_at_mut(pooled);
-    let (acc, bytes) = rest.split_at_mut(block * widest);
-    let bytes: &mut [i8] = bytemuck::cast_slice_mut(bytes);
-    let (input_bytes, bytes) = bytes.split_at_mut(16 * block);
-    let inputs: &mut [i16] = bytemuck::cast_slice_mut(input_bytes);
-    let (acts, bytes) = bytes.split_at_mut(block * acts_len);
-    let (gathered, fc) = bytes.split_at_mut(block * widest_in);
-    let (a, b) = fc.split_at_mut((2 * pooled).max(model.widest_fc()));
-    let (max, _) = a.split_at_mut(pooled);
-    max.fill(i8::MIN);
-    sum.fill(0);
-    for chunk in points.chunks(block) {
-        let n = chunk.len();
-        for (dst, p) in inputs.chunks_exact_mut(8).zip(chunk) {
-            dst[..FEATURES].copy_from_slice(&coding.code(p));
-        }
-        for i in 0..=last {
-            let l = model.layer(i);
-            let Bias::I32(bias) = l.bias else {
-                return Err(InferError::DType);
-            };
-            let (k_in, out_dim) = (l.desc.in_dim as usize, l.desc.out_dim as usize);
-            let acc = &mut acc[..n * out_dim];
-            match l.weights {
-                Weights::I16(w) => {
-                    for (x, acc) in inputs.chunks_exact(8).zip(acc.chunks_exact_mut(out_dim)) {
-                        k.matvec_i16(w, &x[..FEATURES], bias, acc);
-                    }
-                }
-                Weights::I8(_) if packed.is_some() => {
-                    // The sources are a contiguous run of each point's activation row: read
-                    // them in place, rows `acts_len` apart.
-                    let src = source_range(l.desc.sources, &offs);
-                    let w = packed
-                        .and_then(|p| p.layers[i])
-                        .filter(|w| w.rows() == out_dim && w.k() == src.len())
-                        .ok_or(InferError::PackedModel)?;
-                    k.matmat_packed_i8(&w, &acts[src.start..], acts_len, n, bias, acc, out_dim);
-                }
-                Weights::I8(w) => {
-                    // Gather each point's sources (a contiguous run of its activations) into
-                    // rows of K, then one pass over the weights for the whole block.
-                    let src = source_range(l.desc.sources, &offs);
-                    if n == 1 {
-                        // One point (an MCU's block): read the sources in place, no copy.
-                        k.matvec_i8(w, &acts[src], bias, acc);
-                    } else {
-                        for (row, act) in gathered
-                            .chunks_exact_mut(k_in)
-                            .zip(acts.chunks_exact(acts_len))
-                            .take(n)
-                        {
-                            row.copy_from_slice(&act[src.clone()]);
-                        }
-                        k.matmat_i8(w, k_in, &gathered[..n * k_in], bias, acc, out_dim);
-                    }
-                }
-                Weights::F32(_) => return Err(InferError::DType),
-            }
-            for (row, act) in acc
-                .chunks_exact(out_dim)
-                .zip(acts.chunks_exact_mut(acts_len))
-            {
-                k.requantize_i8(
-                    row,
-                    l.scales,
-                    l.desc.leaky,
-                    &mut act[offs[i]..offs[i] + out_dim],
-                );
-            }
-        }
-        for act in acts.chunks_exact(acts_len).take(n) {
-            k.pool_i8(max, sum, &act[offs[last]..offs[last + 1]]);
-        }
-    }
-    let n = points.len() as u32;
-    for (dst, &s) in a[pooled..2 * pooled].iter_mut().zip(sum.iter()) {
-        *dst = quant::average(s, n, model.avg_scale());
-    }
-    let feats = fc_chain(model, (a, b), 2 * pooled, |_, l, x, out| {
-        let (Weights::I8(w), Bias::I32(bias)) = (l.weights, l.bias) else {
-            return Err(InferError::DType);
-        };
-        let acc = &mut acc[..out.len()];
-        k.matvec_i8(w, x, bias, acc);
-        k.requantize_i8(acc, l.scales, l.desc.leaky, out);
-        Ok(())
-    })?;
-    heads(model, feats, out_x, out_y, |l, f, dst| {
-        let (Weights::I8(w), Bias::I32(bias)) = (l.weights, l.bias) else {
-            return Err(InferError::DType);
-        };
-        k.matvec_i8(w, f, bias, dst);
-        Ok(())
     })
 }
 

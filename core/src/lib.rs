@@ -13,9 +13,10 @@
 //! | sampling | [`sample`] | `M` points → `N` network inputs, seeded and reproducible |
 //! | model | [`model`] | the `.evq` model blob, validated and read in place |
 //! | quantization | [`quant`] | the int8 engine's rounding and requantization, defined once |
-//! | inference | [`infer`] | f32 and int8 PointNet engines, fused per point, fixed scratch |
+//! | inference | [`infer`] | the inference [`Plan`]: f32 and int8 PointNet engines, fused per point, fixed scratch |
 //! | kernels | [`kernels`] | matrix kernels (row-major and packed weights), requantization, pooling: scalar reference and optimized versions |
 //! | decoding | [`simdr`] | SimDR labels and argmax decoding to 2-D joints |
+//! | per window | [`pipeline`] | one window of events in, one estimate out: the loop every pipeline runs |
 //! | triangulation | `geometry` | projection and two-view triangulation of joints to 3-D (feature `geometry`) |
 //!
 //! Bad input never panics: it yields a typed error or a counted drop.
@@ -45,6 +46,7 @@ pub mod geometry;
 pub mod infer;
 pub mod kernels;
 pub mod model;
+pub mod pipeline;
 pub mod quant;
 pub mod raster;
 pub mod sample;
@@ -52,11 +54,11 @@ pub mod simdr;
 
 pub use event::Event;
 pub use infer::{
-    pack_point_layers, packed_bytes, run_f32, run_f32_observed, run_f32_with, run_i8,
-    run_i8_packed, run_i8_with, scratch_words, scratch_words_for_block, InferError, PackedLayout,
-    PackedWeights, Stage,
+    pack_point_layers, packed_bytes, scratch_words, scratch_words_for_block, InferError,
+    PackedLayout, PackedWeights, Plan, Stage,
 };
 pub use model::{DType, Model, ModelError};
+pub use pipeline::{Estimate, Estimator, Session, Workspace};
 pub use raster::{
     ConfigError, Davis346Storage, InlineStorage, Point, Pushed, RasterConfig, RasterStats,
     RasterStorage, Rasterizer, Window, WindowRule,

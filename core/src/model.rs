@@ -15,7 +15,8 @@
 //! 16  layer count u16       18  point layers u16    20  joints u16   22 width u16  24 height u16
 //! 26  head dim u16          28  input shifts [u8; 5] + 3 reserved
 //! 36  average-pool constant f32 (int8)             40  table offset u32   44  data offset u32
-//! 48  reserved (16 bytes)
+//! 48  points N u32 (0: any)   52  window events u32 (0: unstated)   56  time slices K u8
+//!     (0: unstated)           57  reserved (7 bytes)          (version 2; version 1: all 0)
 //! 64  layer table: one 32-byte entry per layer, in order: point layers, FC layers, head x, head y
 //!     0 kind u8 (0 point, 1 fc, 2 head x, 3 head y)   1 flags u8 (bit 0 LeakyReLU)
 //!     2 weight type u8 (0 f32, 1 i8, 2 i16)           3 reserved
@@ -26,16 +27,102 @@
 //!       scales `[out]` f32 (int8 requantization multipliers)
 //! ```
 //! [`Model::parse`] checks the magic, version, checksum, every offset, size and alignment, and
-//! that the dimensions chain; after that, reading the model cannot fail.
+//! that the dimensions chain; after that, reading the model cannot fail. The offsets are named
+//! once, in [`header`] and [`entry`], for the parser and the host's writer.
+//!
+//! Bytes 48–56 carry the preprocessing the model was trained for ([`Preprocessing`]: points per
+//! input, events per window, time slices), so the contract travels with the weights. Version 1
+//! blobs (before these fields) still parse, with the fields unstated.
 
 use core::fmt;
 
 use bytemuck::Pod;
 
+/// Byte offsets of the header fields.
+pub mod header {
+    /// Magic, 4 bytes.
+    pub const MAGIC: usize = 0;
+    /// Version, u16.
+    pub const VERSION: usize = 4;
+    /// Number format, u8.
+    pub const DTYPE: usize = 6;
+    /// Reserved, u8 (zero).
+    pub const RESERVED: usize = 7;
+    /// Total length, u32.
+    pub const TOTAL: usize = 8;
+    /// CRC-32 of bytes `CRC_FROM..total`, u32.
+    pub const CRC: usize = 12;
+    /// First byte the CRC covers.
+    pub const CRC_FROM: usize = 16;
+    /// Layer count, u16.
+    pub const LAYERS: usize = 16;
+    /// Point layer count, u16.
+    pub const POINT_LAYERS: usize = 18;
+    /// Joints, u16.
+    pub const JOINTS: usize = 20;
+    /// SimDR width, u16.
+    pub const WIDTH: usize = 22;
+    /// SimDR height, u16.
+    pub const HEIGHT: usize = 24;
+    /// Head dimension, u16.
+    pub const HEAD_DIM: usize = 26;
+    /// Input shifts, `[u8; 5]`.
+    pub const INPUT_SHIFTS: usize = 28;
+    /// Average-pool constant, f32.
+    pub const AVG_SCALE: usize = 36;
+    /// Layer table offset, u32.
+    pub const TABLE: usize = 40;
+    /// Data offset, u32.
+    pub const DATA: usize = 44;
+    /// Points per input, u32 (version 2).
+    pub const POINTS: usize = 48;
+    /// Events per window, u32 (version 2).
+    pub const WINDOW_EVENTS: usize = 52;
+    /// Time slices, u8 (version 2).
+    pub const SLICES: usize = 56;
+}
+
+/// Byte offsets of the fields of a layer-table entry.
+pub mod entry {
+    /// Kind, u8.
+    pub const KIND: usize = 0;
+    /// Flags, u8 (bit 0: LeakyReLU).
+    pub const FLAGS: usize = 1;
+    /// Weight type, u8.
+    pub const WEIGHT_TYPE: usize = 2;
+    /// Input width, u32.
+    pub const IN_DIM: usize = 4;
+    /// Output width, u32.
+    pub const OUT_DIM: usize = 8;
+    /// Sources bitmask, u32.
+    pub const SOURCES: usize = 12;
+    /// Weights offset, u32.
+    pub const WEIGHTS: usize = 16;
+    /// Bias offset, u32.
+    pub const BIAS: usize = 20;
+    /// Scales offset, u32 (0: none).
+    pub const SCALES: usize = 24;
+    /// LeakyReLU slope, f32.
+    pub const ALPHA: usize = 28;
+}
+
+/// The preprocessing a model expects, recorded in its blob (0: unstated, the caller's default
+/// applies).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Preprocessing {
+    /// Points per network input, `N` (0: any).
+    pub points: u32,
+    /// Events per window (0: unstated).
+    pub window_events: u32,
+    /// Time slices `K` of the rasterization (0: unstated).
+    pub slices: u8,
+}
+
 /// First bytes of a blob.
 pub const MAGIC: [u8; 4] = *b"EVPQ";
-/// Format version this crate reads and writes.
-pub const VERSION: u16 = 1;
+/// Format version this crate writes (2: with [`Preprocessing`]); it reads versions 1 and 2.
+pub const VERSION: u16 = 2;
 /// Size of the fixed header.
 pub const HEADER_LEN: usize = 64;
 /// Size of one layer-table entry.
@@ -142,7 +229,9 @@ impl fmt::Display for ModelError {
                 write!(f, "model blob truncated: needs {needed} bytes, has {got}")
             }
             Self::BadMagic => write!(f, "not an evpose model blob (bad magic)"),
-            Self::Version(v) => write!(f, "model blob version {v}, this build reads {VERSION}"),
+            Self::Version(v) => {
+                write!(f, "model blob version {v}, this build reads 1 to {VERSION}")
+            }
             Self::Checksum { stored, computed } => write!(
                 f,
                 "model blob corrupt: checksum {computed:08x}, header says {stored:08x}"
@@ -224,6 +313,7 @@ pub struct Model<'a> {
     head_dim: u16,
     input_shifts: [u8; FEATURES],
     avg_scale: f32,
+    preprocessing: Preprocessing,
 }
 
 fn u16_at(b: &[u8], o: usize) -> u16 {
@@ -243,14 +333,15 @@ impl<'a> Model<'a> {
                 got: blob.len(),
             });
         }
-        if blob[..4] != MAGIC {
+        use header as h;
+        if blob[h::MAGIC..h::MAGIC + 4] != MAGIC {
             return Err(ModelError::BadMagic);
         }
-        let version = u16_at(blob, 4);
-        if version != VERSION {
+        let version = u16_at(blob, h::VERSION);
+        if !(1..=VERSION).contains(&version) {
             return Err(ModelError::Version(version));
         }
-        let total = u32_at(blob, 8) as usize;
+        let total = u32_at(blob, h::TOTAL) as usize;
         if blob.len() < total {
             return Err(ModelError::Truncated {
                 needed: total,
@@ -261,24 +352,24 @@ impl<'a> Model<'a> {
             return Err(ModelError::Header("total length below the header size"));
         }
         let blob = &blob[..total];
-        let stored = u32_at(blob, 12);
-        let computed = CRC.checksum(&blob[16..]);
+        let stored = u32_at(blob, h::CRC);
+        let computed = CRC.checksum(&blob[h::CRC_FROM..]);
         if stored != computed {
             return Err(ModelError::Checksum { stored, computed });
         }
         if !(blob.as_ptr() as usize).is_multiple_of(ALIGN) {
             return Err(ModelError::Misaligned);
         }
-        if blob[7] != 0 {
+        if blob[h::RESERVED] != 0 {
             return Err(ModelError::Header("reserved byte 7 must be zero"));
         }
-        let dtype = match blob[6] {
+        let dtype = match blob[h::DTYPE] {
             0 => DType::F32,
             1 => DType::I8,
             _ => return Err(ModelError::Header("unknown dtype")),
         };
         let mut shifts = [0u8; FEATURES];
-        shifts.copy_from_slice(&blob[28..28 + FEATURES]);
+        shifts.copy_from_slice(&blob[h::INPUT_SHIFTS..h::INPUT_SHIFTS + FEATURES]);
         if shifts.iter().any(|&s| s > 15) {
             return Err(ModelError::Header("input shift above 15"));
         }
@@ -286,17 +377,35 @@ impl<'a> Model<'a> {
             blob,
             dtype,
             layers: [None; MAX_LAYERS],
-            layer_count: usize::from(u16_at(blob, 16)),
-            point_layers: usize::from(u16_at(blob, 18)),
-            joints: u16_at(blob, 20),
-            width: u16_at(blob, 22),
-            height: u16_at(blob, 24),
-            head_dim: u16_at(blob, 26),
+            layer_count: usize::from(u16_at(blob, h::LAYERS)),
+            point_layers: usize::from(u16_at(blob, h::POINT_LAYERS)),
+            joints: u16_at(blob, h::JOINTS),
+            width: u16_at(blob, h::WIDTH),
+            height: u16_at(blob, h::HEIGHT),
+            head_dim: u16_at(blob, h::HEAD_DIM),
             input_shifts: shifts,
-            avg_scale: f32::from_bits(u32_at(blob, 36)),
+            avg_scale: f32::from_bits(u32_at(blob, h::AVG_SCALE)),
+            preprocessing: Preprocessing {
+                points: u32_at(blob, h::POINTS),
+                window_events: u32_at(blob, h::WINDOW_EVENTS),
+                slices: blob[h::SLICES],
+            },
         };
+        if version == 1 && m.preprocessing != Preprocessing::default() {
+            return Err(ModelError::Header(
+                "version 1 blobs have no preprocessing fields",
+            ));
+        }
+        if m.preprocessing.slices > crate::raster::MAX_SLICES {
+            return Err(ModelError::Header(
+                "more time slices than the rasterizer has",
+            ));
+        }
+        if blob[h::SLICES + 1..HEADER_LEN].iter().any(|&b| b != 0) {
+            return Err(ModelError::Header("reserved bytes 57..64 must be zero"));
+        }
         m.check_header()?;
-        let table = u32_at(blob, 40) as usize;
+        let table = u32_at(blob, h::TABLE) as usize;
         let table_end = table + m.layer_count * ENTRY_LEN;
         if table < HEADER_LEN || table_end > total {
             return Err(ModelError::Header("layer table outside the blob"));
@@ -334,7 +443,8 @@ impl<'a> Model<'a> {
             index: i as u8,
             reason,
         };
-        let kind = match e[0] {
+        use entry as f;
+        let kind = match e[f::KIND] {
             0 => LayerKind::Point,
             1 => LayerKind::Fc,
             2 => LayerKind::HeadX,
@@ -353,7 +463,7 @@ impl<'a> Model<'a> {
         if kind != expected_kind {
             return Err(err("layers must be ordered: point, FC, head x, head y"));
         }
-        let weight_type = match e[2] {
+        let weight_type = match e[f::WEIGHT_TYPE] {
             0 => WeightType::F32,
             1 => WeightType::I8,
             2 => WeightType::I16,
@@ -367,22 +477,22 @@ impl<'a> Model<'a> {
         if !allowed {
             return Err(err("weight type does not fit the model's dtype"));
         }
-        let alpha = f32::from_bits(u32_at(e, 28));
-        let leaky = match e[1] & 1 {
+        let alpha = f32::from_bits(u32_at(e, f::ALPHA));
+        let leaky = match e[f::FLAGS] & 1 {
             1 if alpha.is_finite() => Some(alpha),
             1 => return Err(err("LeakyReLU slope is not finite")),
             _ => None,
         };
         let d = LayerDesc {
             kind,
-            in_dim: u32_at(e, 4),
-            out_dim: u32_at(e, 8),
-            sources: u32_at(e, 12),
+            in_dim: u32_at(e, f::IN_DIM),
+            out_dim: u32_at(e, f::OUT_DIM),
+            sources: u32_at(e, f::SOURCES),
             leaky,
             weight_type,
-            weights: u32_at(e, 16),
-            bias: u32_at(e, 20),
-            scales: u32_at(e, 24),
+            weights: u32_at(e, f::WEIGHTS),
+            bias: u32_at(e, f::BIAS),
+            scales: u32_at(e, f::SCALES),
         };
         if d.in_dim == 0 || d.out_dim == 0 || d.in_dim > 1 << 16 || d.out_dim > 1 << 16 {
             return Err(err("dimensions must be in 1..=65536"));
@@ -539,6 +649,11 @@ impl<'a> Model<'a> {
             bias,
             scales,
         }
+    }
+
+    /// The preprocessing the model expects (fields 0 where the blob does not state them).
+    pub fn preprocessing(&self) -> Preprocessing {
+        self.preprocessing
     }
 
     /// Number format.

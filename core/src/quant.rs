@@ -67,6 +67,16 @@ pub fn requantize(acc: i32, scale: f32, leaky: Option<f32>) -> i8 {
     round_to_i32(v.clamp(-129.0, 128.0)).clamp(-128, 127) as i8
 }
 
+/// One layer's requantization: per-output-channel multipliers and the optional LeakyReLU slope,
+/// applied to each int32 accumulator by [`requantize`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Requant<'a> {
+    /// `[out]` multipliers (accumulator units → the next layer's int8 units).
+    pub scales: &'a [f32],
+    /// LeakyReLU slope, when the layer has one.
+    pub leaky: Option<f32>,
+}
+
 /// Average pooling's single scaled rounding: `sat_i8(round(f32(sum) × (c / f32(n))))`.
 ///
 /// `c` folds the input and output scales; the division by the point count is one IEEE division,

@@ -774,6 +774,18 @@ pub struct Window<'a> {
     summary: WindowSummary,
 }
 
+impl Default for Window<'_> {
+    /// A window without points or events.
+    fn default() -> Self {
+        Self {
+            a: &[],
+            b: &[],
+            slices: DEFAULT_SLICES,
+            summary: WindowSummary::default(),
+        }
+    }
+}
+
 impl<'a> Window<'a> {
     /// Number of points (non-empty cells).
     pub fn len(&self) -> usize {

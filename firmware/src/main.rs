@@ -21,16 +21,18 @@ mod input;
 mod selftest;
 mod stack;
 
+use core::cell::Cell;
 use cortex_m_rt::{entry, exception, ExceptionFrame};
 use defmt::println;
 use defmt_semihosting as _;
+
+use evpose_core::kernels::Kernels;
 use evpose_core::model::{DType, ModelError, FEATURES};
-use evpose_core::raster::{ConfigError, Window};
-use evpose_core::sample::{rng_from_seed, sample_window, BufferTooSmall, SampleRng};
-use evpose_core::simdr::ShapeError;
+use evpose_core::pipeline::{Estimate, PipelineError, Profiler, Step, I8};
+use evpose_core::raster::ConfigError;
 use evpose_core::{
-    decode, run_i8, scratch_words, Davis346Storage, Event, InferError, Joint2d, Model,
-    RasterConfig, Rasterizer,
+    scratch_words, Davis346Storage, Estimator, Event, InferError, Joint2d, Model, Plan,
+    RasterConfig, Rasterizer, Session, Workspace,
 };
 use static_cell::ConstStaticCell;
 
@@ -98,9 +100,8 @@ enum Error {
     },
     Config(ConfigError),
     Stream(StreamError),
-    Sample(BufferTooSmall),
     Infer(InferError),
-    Decode(ShapeError),
+    Pipeline(PipelineError),
 }
 
 macro_rules! from {
@@ -113,7 +114,7 @@ macro_rules! from {
     };
 }
 from!(ModelError => Model, ConfigError => Config, StreamError => Stream,
-      BufferTooSmall => Sample, InferError => Infer, ShapeError => Decode);
+      InferError => Infer, PipelineError => Pipeline);
 
 #[entry]
 fn main() -> ! {
@@ -156,45 +157,81 @@ fn exit(code: i32) -> ! {
     semihosting::process::exit(code)
 }
 
-/// Instructions spent since `start` (in SysTick ticks), per the calibration.
-struct Stopwatch {
+/// Instructions per pipeline stage, from SysTick ticks and the calibration: the core's
+/// [`Profiler`] hook (shared, so that the per-window report can read it while the session runs).
+struct StageClock {
     per_tick: u64,
+    /// Tick at which the running stage began.
+    started: Cell<u64>,
+    /// Instructions per [`Step`] since the last report, and reading input.
+    spent: [Cell<u64>; 5],
 }
 
-impl Stopwatch {
+impl StageClock {
+    const INPUT: usize = 4;
+
+    fn new(per_tick: u64) -> Self {
+        Self {
+            per_tick,
+            started: Cell::new(0),
+            spent: Default::default(),
+        }
+    }
+
+    fn slot(step: Step) -> usize {
+        match step {
+            Step::Rasterize => 0,
+            Step::Sample => 1,
+            Step::Infer => 2,
+            Step::Decode => 3,
+        }
+    }
+
+    /// Instructions since `start` (in ticks).
     fn since(&self, start: u64) -> u64 {
         (clock::ticks() - start) * self.per_tick
+    }
+
+    fn add(&self, slot: usize, instructions: u64) {
+        self.spent[slot].set(self.spent[slot].get() + instructions);
+    }
+
+    /// The instructions per slot since the last call, and zero them.
+    fn take(&self) -> [u64; 5] {
+        core::array::from_fn(|i| self.spent[i].take())
+    }
+}
+
+impl Profiler for &StageClock {
+    fn begin(&mut self, _: Step) {
+        self.started.set(clock::ticks());
+    }
+
+    fn end(&mut self, step: Step) {
+        self.add(StageClock::slot(step), self.since(self.started.get()));
     }
 }
 
 fn run(per_tick: u64) -> Result<(), Error> {
-    let sw = Stopwatch { per_tick };
+    let clock = StageClock::new(per_tick);
     let t = clock::ticks();
     let model = Model::parse(&MODEL.0)?;
-    let parse = sw.since(t);
-    let scratch = scratch_words(&model);
+    let parse = clock.since(t);
+    let scratch_needed = scratch_words(&model);
     if model.dtype() != DType::I8
         || (model.joints(), model.width(), model.height()) != (JOINTS, WIDTH, HEIGHT)
-        || scratch > SCRATCH_WORDS
+        || scratch_needed > SCRATCH_WORDS
     {
         return Err(Error::ModelShape {
             joints: model.joints(),
             width: model.width(),
             height: model.height(),
-            scratch_words: scratch,
+            scratch_words: scratch_needed,
         });
     }
-    println!(
-        "model: bytes={=usize} layers={=usize} point_layers={=usize} macs_per_point={=u64} macs_after_pooling={=u64} scratch_words={=usize} parse_instructions={=u64}",
-        model.bytes().len(),
-        model.layer_count(),
-        model.point_layer_count(),
-        model.macs_per_point(),
-        model.macs_after_pooling(),
-        scratch,
-        parse
-    );
-
+    let t = clock::ticks();
+    let plan = Plan::new(&model, Kernels::best(), SCRATCH_WORDS)?;
+    let prepare = clock.since(t);
     let Buffers {
         events,
         indices,
@@ -204,161 +241,97 @@ fn run(per_tick: u64) -> Result<(), Error> {
         out_y,
         joints,
     } = BUFFERS.take();
-    let mut raster = Rasterizer::new(RasterConfig::DAVIS346, RASTER.take())?;
+    // What does not scale with the point count (FC layers, heads, set-up): one inference on
+    // one point. An inference's instructions do not depend on the values (no data-dependent
+    // branches), so the difference to a window's inference is what its point layers cost.
+    let t = clock::ticks();
+    plan.run_i8(&[[0.0; FEATURES]], scratch, out_x, out_y)?;
+    let one_point = clock.since(t);
+    println!(
+        "model: bytes={=usize} layers={=usize} point_layers={=usize} macs_per_point={=u64} macs_after_pooling={=u64} scratch_words={=usize} block={=usize} parse_instructions={=u64} plan_instructions={=u64} infer_one_point={=u64}",
+        model.bytes().len(),
+        model.layer_count(),
+        model.point_layer_count(),
+        model.macs_per_point(),
+        model.macs_after_pooling(),
+        plan.scratch_words(),
+        plan.block(),
+        parse,
+        prepare,
+        one_point
+    );
+
+    let raster = Rasterizer::new(RasterConfig::DAVIS346, RASTER.take())?;
+    let mut session = Session::new(raster, Estimator::new(plan, POINTS, SEED));
+    let mut ws = Workspace::<I8> {
+        indices,
+        rows: points,
+        scratch,
+        x: out_x,
+        y: out_y,
+        joints,
+    };
     let mut source = EvsReader::new(&EVENTS[..])?;
     let h = *source.header();
     println!(
         "stream: width={=u16} height={=u16} events={=u32}",
         h.width, h.height, h.events
     );
-    let mut rng = rng_from_seed(SEED);
-    let mut window = 0u32;
-    let (mut input, mut rasterize) = (0u64, 0u64);
     loop {
         let t = clock::ticks();
         let n = source.read_events(events)?;
-        input += sw.since(t);
+        clock.add(StageClock::INPUT, clock.since(t));
         if n == 0 {
             break;
         }
-        let mut t = clock::ticks();
-        // The whole batch at once (`extend`: the same windows as pushing event by event, with
-        // the per-event checks in registers); it stops after an event that closes a window.
-        let mut rest = &events[..n];
-        while !rest.is_empty() {
-            let (used, closed) = raster.extend(rest);
-            rest = &rest[used..];
-            if let Some(w) = closed {
-                rasterize += sw.since(t);
-                let mut ctx = WindowRun {
-                    sw: &sw,
-                    model: &model,
-                    rng: &mut rng,
-                    indices,
-                    points,
-                    scratch,
-                    out_x,
-                    out_y,
-                    joints,
-                };
-                ctx.process(window, &w, input, rasterize)?;
-                window += 1;
-                (input, rasterize) = (0, 0);
-                t = clock::ticks();
-            }
-        }
-        rasterize += sw.since(t);
+        // The whole batch at once: the session rasterizes with `extend` (the same windows as
+        // pushing event by event) and estimates every window the batch closes.
+        session.feed(&events[..n], &mut ws, &mut &clock, |e| {
+            report(&e, &clock, one_point, &model);
+            Ok::<(), Error>(())
+        })?;
     }
-    let s = raster.stats();
+    let r = session.rasterizer();
+    let s = r.stats();
     println!(
         "done: windows={=u32} accepted={=u64} dropped={=u64} out_of_order={=u64} tail={=usize}",
-        window,
+        session.estimator().windows(),
         s.accepted,
         s.dropped_out_of_range,
         s.out_of_order,
-        raster.buffered()
+        r.buffered()
     );
     Ok(())
 }
 
-/// What one window's processing borrows.
-struct WindowRun<'a> {
-    sw: &'a Stopwatch,
-    model: &'a Model<'a>,
-    rng: &'a mut SampleRng,
-    indices: &'a mut [u32],
-    points: &'a mut [[f32; FEATURES]],
-    scratch: &'a mut [i32],
-    out_x: &'a mut [i32],
-    out_y: &'a mut [i32],
-    joints: &'a mut [Joint2d],
-}
-
-impl WindowRun<'_> {
-    /// Samples, infers and decodes one closed window; prints its results and instructions.
-    fn process(
-        &mut self,
-        index: u32,
-        w: &Window<'_>,
-        input: u64,
-        rasterize: u64,
-    ) -> Result<(), Error> {
-        let sw = self.sw;
-        let t = clock::ticks();
-        let rows = sample_window(w, POINTS, self.rng, self.indices, self.points)?;
-        let sample = sw.since(t);
-        let t = clock::ticks();
-        run_i8(self.model, rows, self.scratch, self.out_x, self.out_y)?;
-        let infer = sw.since(t);
-        let t = clock::ticks();
-        decode(self.out_x, self.out_y, WIDTH, HEIGHT, self.joints)?;
-        let decode = sw.since(t);
-
-        let s = w.summary();
-        println!(
-            "window={=u32} events={=u32} points={=usize} t_min={=i64} t_max={=i64} crc_points={=u32:#010x} crc_input={=u32:#010x} crc_heads={=u32:#010x}",
-            index,
-            s.events,
-            w.len(),
-            s.t_min,
-            s.t_max,
-            crc_points(w),
-            crc_rows(rows),
-            crc_heads(self.out_x, self.out_y)
-        );
-        let mut xy = [0u16; 2 * JOINTS];
-        for (pair, j) in xy.chunks_exact_mut(2).zip(self.joints.iter()) {
-            pair.copy_from_slice(&[j.x, j.y]);
-        }
-        println!("window={=u32} joints={}", index, xy);
-
-        // The same inference on one point: what does not scale with the point count (FC
-        // layers, heads, set-up). The difference is what the point layers cost per point.
-        let n = rows.len() as u64;
-        let t = clock::ticks();
-        run_i8(self.model, &rows[..1], self.scratch, self.out_x, self.out_y)?;
-        let one_point = sw.since(t);
-        let per_point = infer.saturating_sub(one_point) / (n - 1).max(1);
-        let per_mac = per_point as f32 / self.model.macs_per_point() as f32;
-        println!(
-            "window={=u32} instructions input={=u64} rasterize={=u64} sample={=u64} infer={=u64} decode={=u64} infer_one_point={=u64} per_point={=u64} per_point_layer_mac={=f32}",
-            index, input, rasterize, sample, infer, decode, one_point, per_point, per_mac
-        );
-        Ok(())
+/// Prints one window's results, digests and instructions per stage.
+fn report(e: &Estimate<'_>, clock: &StageClock, one_point: u64, model: &Model<'_>) {
+    let s = e.window.summary();
+    let d = e.digest();
+    println!(
+        "window={=u32} events={=u32} points={=usize} t_min={=i64} t_max={=i64} crc_points={=u32:#010x} crc_input={=u32:#010x} crc_heads={=u32:#010x}",
+        e.index,
+        s.events,
+        e.window.len(),
+        s.t_min,
+        s.t_max,
+        d.points,
+        d.input,
+        d.heads
+    );
+    let mut xy = [0u16; 2 * JOINTS];
+    for (pair, j) in xy.chunks_exact_mut(2).zip(e.joints.iter()) {
+        pair.copy_from_slice(&[j.x, j.y]);
     }
-}
-
-/// CRC-32 (ISO-HDLC, as the model blob's) of the point cloud: per point, x u16, y u16, slice
-/// u8, t_avg f32 bits, p_acc i32, cnt u32, little-endian.
-fn crc_points(w: &Window<'_>) -> u32 {
-    let mut d = evpose_core::model::CRC.digest();
-    for p in w.iter() {
-        d.update(&p.x.to_le_bytes());
-        d.update(&p.y.to_le_bytes());
-        d.update(&[p.slice]);
-        d.update(&p.t_avg.to_bits().to_le_bytes());
-        d.update(&p.p_acc.to_le_bytes());
-        d.update(&p.cnt.to_le_bytes());
-    }
-    d.finalize()
-}
-
-/// CRC-32 of the network input rows: f32 bits, little-endian, row by row.
-fn crc_rows(rows: &[[f32; FEATURES]]) -> u32 {
-    let mut d = evpose_core::model::CRC.digest();
-    for v in rows.iter().flatten() {
-        d.update(&v.to_bits().to_le_bytes());
-    }
-    d.finalize()
-}
-
-/// CRC-32 of the heads' int32 accumulators: all x values, then all y values, little-endian.
-fn crc_heads(x: &[i32], y: &[i32]) -> u32 {
-    let mut d = evpose_core::model::CRC.digest();
-    for v in x.iter().chain(y) {
-        d.update(&v.to_le_bytes());
-    }
-    d.finalize()
+    println!("window={=u32} joints={}", e.index, xy);
+    let [rasterize, sample, infer, decode, input] = clock.take();
+    let n = e.input.len() as u64;
+    let per_point = infer.saturating_sub(one_point) / (n - 1).max(1);
+    let per_mac = per_point as f32 / model.macs_per_point() as f32;
+    println!(
+        "window={=u32} instructions input={=u64} rasterize={=u64} sample={=u64} infer={=u64} decode={=u64} infer_one_point={=u64} per_point={=u64} per_point_layer_mac={=f32}",
+        e.index, input, rasterize, sample, infer, decode, one_point, per_point, per_mac
+    );
 }
 
 #[exception]

@@ -44,7 +44,7 @@ fn files(dir: &Path) -> Vec<(&'static str, PathBuf)> {
             ]
         })
         .collect();
-    evpose_host::npy::write(&npy, &[EVENTS as u64, 4], &rows).expect("write npy");
+    evpose_host::array::write(&npy, &[EVENTS as u64, 4], &rows).expect("write npy");
 
     for (name, file, compression) in [
         ("aedat4 (LZ4)", "lz4.aedat4", Compression::Lz4),

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use evpose_core::geometry::Camera;
 
-use crate::npy;
+use crate::array;
 
 /// Image width of a DHP19 camera (DAVIS346), pixels.
 pub const WIDTH: u16 = 346;
@@ -49,7 +49,7 @@ const BUNDLED: [(&str, &[u8]); 5] = [
 pub fn camera(dir: &Path, channel: u8) -> Result<Camera> {
     camera_from(channel, |file| {
         let path = dir.join(file);
-        let (shape, data) = npy::read_f64(&path)?;
+        let (shape, data) = array::read_f64(&path)?;
         Ok((path.display().to_string(), shape, data))
     })
 }
@@ -61,7 +61,7 @@ pub fn bundled_camera(channel: u8) -> Result<Camera> {
             .iter()
             .find(|(name, _)| *name == file)
             .context("not a bundled calibration file")?;
-        let (shape, values) = npy::stream_f64(bytes)?;
+        let (shape, values) = array::stream_f64(bytes)?;
         let data = values.collect::<std::io::Result<Vec<f64>>>()?;
         Ok((format!("bundled {file}"), shape, data))
     })

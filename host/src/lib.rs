@@ -1,13 +1,34 @@
 //! # evpose-host
 //!
-//! The std side of evpose: event file readers, `.npy` helpers, the rasterization pipeline over
-//! whole recordings, benchmarks, and the `evpose` command-line tool (a thin binary over
-//! [`cli`]).
+//! The std side of evpose, a library with a thin command-line tool over it (`evpose`, in
+//! [`cli`]): event file readers, the per-window pipeline over whole recordings, poses, model
+//! import and quantization, parity with an independent engine, budgets and benchmarks.
+//!
+//! | stage | module |
+//! |---|---|
+//! | events in | [`io`] (every format, files or memory), [`summary`], [`convert`] |
+//! | windows → estimates | [`pipeline`] (any reader through a core stage), [`pose`] (the JSON schema, once) |
+//! | 3-D | [`dhp19`] (calibration), [`triangulate`] (window pairing, 3-D joints) |
+//! | models | [`model`] (blobs, quantization; ONNX and tract with feature `onnx`), [`inputs`], [`parity`] |
+//! | costs | [`budget`] (MACs, bytes, firmware images), [`bench`] |
+//! | files | [`array`] (`.npy`), [`assets`] (what the binary embeds) |
+//!
+//! Feature `onnx` (default): ONNX import, the quantized ONNX twin and tract. Without it the
+//! runtime builds without tract.
 #![deny(missing_docs)]
 
+pub mod array;
+pub mod assets;
+pub mod bench;
+pub mod budget;
 pub mod cli;
+pub mod convert;
 pub mod dhp19;
+pub mod inputs;
 pub mod io;
 pub mod model;
-pub mod npy;
+pub mod parity;
 pub mod pipeline;
+pub mod pose;
+pub mod summary;
+pub mod triangulate;

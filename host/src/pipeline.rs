@@ -1,15 +1,18 @@
-//! Whole recordings through the core: read, select a camera, rasterize window by window.
+//! Recordings through the core, window by window: events from any [`EventReader`] (a file,
+//! the simulator, memory), one camera selected, windows cut per camera or over all cameras,
+//! and each window handed to a core stage: the [`Rasterizer`] alone (`evpose raster`) or a
+//! whole [`Session`] (`evpose pose`).
 //!
-//! The CLI's `raster` command and the parity tests both call [`rasterize`], so the tests check
-//! the code path users run.
-
-use std::path::Path;
+//! [`drive`] is the one loop over a reader's batches; a [`WindowSink`] is what it feeds.
 
 use anyhow::{bail, Context, Result};
+use evpose_core::pipeline::{Engine, Estimate, Workspace};
 use evpose_core::raster::{RasterParts, MAX_HEIGHT, MAX_WIDTH};
-use evpose_core::{RasterConfig, RasterStats, RasterStorage, Rasterizer, Window, WindowRule};
+use evpose_core::{
+    Event, RasterConfig, RasterStats, RasterStorage, Rasterizer, Session, Window, WindowRule,
+};
 
-use crate::io::{self, Batch, Format, StreamInfo};
+use crate::io::{self, Batch, EventReader, OpenOptions, StreamInfo};
 
 /// Heap-backed [`RasterStorage`] for windows of any size on the host.
 pub struct VecStorage {
@@ -46,50 +49,149 @@ impl RasterStorage for VecStorage {
     }
 }
 
-/// How to cut and rasterize a recording.
-#[derive(Clone, Debug)]
-pub struct RasterOptions {
-    /// Force a file format instead of detecting it.
-    pub format: Option<Format>,
-    /// Sensor size; default: what the file states, else the largest supported size.
-    pub size: Option<(u16, u16)>,
-    /// Time slices `K`.
-    pub slices: u8,
-    /// Events per window; `None` rasterizes the whole input as one window.
-    pub window_events: Option<u32>,
-    /// Camera to rasterize (multi-camera recordings); events of other cameras are skipped.
+/// A rasterizer over heap storage for windows of `capacity` events of a `width × height`
+/// sensor with `slices` time slices.
+pub fn rasterizer(
+    (width, height): (u16, u16),
+    slices: u8,
+    capacity: u32,
+) -> Result<Rasterizer<VecStorage>> {
+    let config = RasterConfig {
+        width,
+        height,
+        slices,
+        window: WindowRule::Events(capacity.max(1)),
+    };
+    Rasterizer::new(config, VecStorage::new(capacity.max(1) as usize, &config))
+        .context("invalid rasterization settings")
+}
+
+/// Which events make a window.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Windowing {
+    /// Camera whose events are used (multi-camera recordings); other cameras' are skipped.
     pub camera: u8,
-    /// Count `window_events` over the events of every camera, rasterizing only `camera`'s
-    /// events of each window, so that every camera gets the same windows (DHP19's "Mean
-    /// Label" windows: 30,000 events over its four cameras). A window in which `camera` has no
-    /// event is an empty window. Without `window_events`, no effect.
-    pub all_camera_windows: bool,
+    /// Count the window's events over every camera, using only `camera`'s: every camera gets
+    /// the same windows (DHP19's "Mean Label" windows: 30,000 events over its four cameras). A
+    /// window in which `camera` has no event is an empty window. `None`: windows of the
+    /// rasterizer's own rule over `camera`'s events.
+    pub shared_events: Option<u32>,
 }
 
-impl Default for RasterOptions {
-    fn default() -> Self {
-        Self {
-            format: None,
-            size: None,
-            slices: evpose_core::raster::DEFAULT_SLICES,
-            window_events: None,
-            camera: 0,
-            all_camera_windows: false,
-        }
-    }
-}
-
-/// What a rasterization run did.
+/// What a run over a reader did.
 #[derive(Clone, Debug)]
-pub struct RasterReport {
-    /// The recording's header information.
-    pub info: StreamInfo,
-    /// The sensor size used.
-    pub size: (u16, u16),
+pub struct RunReport {
     /// Windows produced.
     pub windows: usize,
     /// The rasterizer's counters.
     pub stats: RasterStats,
+}
+
+/// A core stage that turns events into windows and hands each closed window on: [`drive`]
+/// feeds it. [`Rasterizing`] (point clouds) and [`Estimating`] (whole estimates) are the two.
+pub trait WindowSink {
+    /// Feeds events until one closes a window, which is handed on; returns how many events
+    /// were used and whether a window closed.
+    fn extend(&mut self, events: &[Event]) -> Result<(usize, bool)>;
+    /// Closes the open window (possibly empty) and hands it on.
+    fn flush(&mut self) -> Result<()>;
+    /// Events in the open window.
+    fn buffered(&self) -> usize;
+    /// The rasterizer's counters.
+    fn stats(&self) -> RasterStats;
+}
+
+/// A [`Rasterizer`] whose windows go to `on_window(index, window)`.
+pub struct Rasterizing<S, F> {
+    raster: Rasterizer<S>,
+    on_window: F,
+    windows: usize,
+}
+
+impl<S: RasterStorage, F: FnMut(usize, &Window<'_>) -> Result<()>> Rasterizing<S, F> {
+    /// Hands `raster`'s windows to `on_window`.
+    pub fn new(raster: Rasterizer<S>, on_window: F) -> Self {
+        Self {
+            raster,
+            on_window,
+            windows: 0,
+        }
+    }
+}
+
+impl<S: RasterStorage, F: FnMut(usize, &Window<'_>) -> Result<()>> WindowSink
+    for Rasterizing<S, F>
+{
+    fn extend(&mut self, events: &[Event]) -> Result<(usize, bool)> {
+        let (used, window) = self.raster.extend(events);
+        let closed = window.is_some();
+        if let Some(w) = window {
+            (self.on_window)(self.windows, &w)?;
+            self.windows += 1;
+        }
+        Ok((used, closed))
+    }
+
+    fn flush(&mut self) -> Result<()> {
+        let w = self.raster.flush();
+        (self.on_window)(self.windows, &w)?;
+        self.windows += 1;
+        Ok(())
+    }
+
+    fn buffered(&self) -> usize {
+        self.raster.buffered()
+    }
+
+    fn stats(&self) -> RasterStats {
+        *self.raster.stats()
+    }
+}
+
+/// A core [`Session`] running in a workspace, whose estimates go to `on_window`.
+pub struct Estimating<'m, 'w, S, E: Engine, F> {
+    session: Session<'m, S>,
+    workspace: Workspace<'w, E>,
+    on_window: F,
+}
+
+impl<'m, 'w, S: RasterStorage, E: Engine, F: FnMut(&Estimate<'_>) -> Result<()>>
+    Estimating<'m, 'w, S, E, F>
+{
+    /// Hands `session`'s estimates, computed in `workspace`, to `on_window`.
+    pub fn new(session: Session<'m, S>, workspace: Workspace<'w, E>, on_window: F) -> Self {
+        Self {
+            session,
+            workspace,
+            on_window,
+        }
+    }
+}
+
+impl<S: RasterStorage, E: Engine, F: FnMut(&Estimate<'_>) -> Result<()>> WindowSink
+    for Estimating<'_, '_, S, E, F>
+{
+    fn extend(&mut self, events: &[Event]) -> Result<(usize, bool)> {
+        let (used, estimate) = self.session.extend(events, &mut self.workspace, &mut ())?;
+        let closed = estimate.is_some();
+        if let Some(e) = estimate {
+            (self.on_window)(&e)?;
+        }
+        Ok((used, closed))
+    }
+
+    fn flush(&mut self) -> Result<()> {
+        let e = self.session.flush(&mut self.workspace, &mut ())?;
+        (self.on_window)(&e)
+    }
+
+    fn buffered(&self) -> usize {
+        self.session.rasterizer().buffered()
+    }
+
+    fn stats(&self) -> RasterStats {
+        *self.session.rasterizer().stats()
+    }
 }
 
 /// Sensor size for `camera`: the override, else the header's, else the largest supported.
@@ -101,58 +203,33 @@ pub fn sensor_size(info: &StreamInfo, camera: u8, size: Option<(u16, u16)>) -> (
     .unwrap_or((MAX_WIDTH, MAX_HEIGHT))
 }
 
-/// Counts the events of `camera` in a recording (a streaming pass).
-pub fn count_events(path: &Path, format: Option<Format>, camera: u8) -> Result<u64> {
-    let mut reader = io::open(path, format)?;
+/// Counts the events of `camera` in a stream (reads it to the end).
+pub fn count_events(reader: &mut dyn EventReader, camera: u8) -> Result<u64> {
     let mut batch = Batch::default();
     let mut n = 0u64;
-    while reader
-        .read_batch(&mut batch)
-        .with_context(|| format!("{}", path.display()))?
-    {
+    while reader.read_batch(&mut batch)? {
         n += batch.cameras.iter().filter(|&&c| c == camera).count() as u64;
     }
     Ok(n)
 }
 
-/// Rasterizes a recording, calling `on_window(index, window)` for each closed window in order.
-///
-/// Windows of `window_events` events (the last one may be shorter), or the whole input as one
-/// window. An input without events gives one empty window.
-pub fn rasterize(
-    path: &Path,
-    opts: &RasterOptions,
-    mut on_window: impl FnMut(usize, &Window<'_>) -> Result<()>,
-) -> Result<RasterReport> {
-    let mut reader = io::open(path, opts.format)?;
-    let info = reader.info().clone();
-    let (width, height) = sensor_size(&info, opts.camera, opts.size);
-    let capacity = match opts.window_events {
-        Some(n) => n as usize,
-        None => match info.event_count {
-            Some(n) if info.cameras.len() <= 1 => n as usize,
-            _ => count_events(path, opts.format, opts.camera)? as usize,
-        },
-    };
-    let config = RasterConfig {
-        width,
-        height,
-        slices: opts.slices,
-        window: WindowRule::Events(capacity.max(1) as u32),
-    };
-    let mut raster = Rasterizer::new(config, VecStorage::new(capacity.max(1), &config))
-        .context("invalid rasterization settings")?;
+/// The loop over a reader: feeds `camera`'s events to `sink` batch by batch; the sink hands
+/// each closed window on, in order. At the end of the input the open window is flushed if it
+/// holds events; an input without any gives one empty window.
+pub fn drive(
+    reader: &mut dyn EventReader,
+    windowing: Windowing,
+    sink: &mut dyn WindowSink,
+) -> Result<RunReport> {
     let mut batch = Batch::default();
     let mut selected = Vec::new();
     let mut windows = 0;
-    // With windows over all cameras: events of every camera in the open window, and the
-    // window length in events of every camera.
-    let shared = opts.window_events.filter(|_| opts.all_camera_windows);
+    let camera = windowing.camera;
+    // With windows over all cameras: events of every camera in the open window, and whether
+    // the camera's own window closed by count inside it.
+    let shared = windowing.shared_events;
     let (mut in_window, mut closed_in_window) = (0u32, false);
-    while reader
-        .read_batch(&mut batch)
-        .with_context(|| format!("{}", path.display()))?
-    {
+    while reader.read_batch(&mut batch)? {
         let mut from = 0;
         while from < batch.events.len() {
             // The part of the batch inside the open window (all of it for per-camera windows).
@@ -161,23 +238,22 @@ pub fn rasterize(
                 None => batch.events.len(),
             };
             let (part, cams) = (&batch.events[from..to], &batch.cameras[from..to]);
-            let events: &[evpose_core::Event] = if cams.iter().all(|&c| c == opts.camera) {
+            let events: &[Event] = if cams.iter().all(|&c| c == camera) {
                 part
             } else {
                 selected.clear();
                 selected.extend(
                     part.iter()
                         .zip(cams)
-                        .filter(|(_, &c)| c == opts.camera)
+                        .filter(|(_, &c)| c == camera)
                         .map(|(e, _)| *e),
                 );
                 &selected
             };
             let mut rest = events;
             while !rest.is_empty() {
-                let (used, window) = raster.extend(rest);
-                if let Some(w) = window {
-                    on_window(windows, &w)?;
+                let (used, closed) = sink.extend(rest)?;
+                if closed {
                     windows += 1;
                     closed_in_window = true;
                 }
@@ -190,7 +266,7 @@ pub fn rasterize(
                     // all n, its rasterizer closed it by count already; if it had none, the
                     // window is empty (and still a window, so that cameras stay aligned).
                     if !closed_in_window {
-                        on_window(windows, &raster.flush())?;
+                        sink.flush()?;
                         windows += 1;
                     }
                     (in_window, closed_in_window) = (0, false);
@@ -199,20 +275,103 @@ pub fn rasterize(
             from = to;
         }
     }
-    if raster.buffered() > 0 || windows == 0 || (in_window > 0 && !closed_in_window) {
-        on_window(windows, &raster.flush())?;
+    if sink.buffered() > 0 || windows == 0 || (in_window > 0 && !closed_in_window) {
+        sink.flush()?;
         windows += 1;
     }
-    let stats = *raster.stats();
-    if stats.dropped_out_of_range > 0 && opts.size.is_none() && windows == 1 && stats.accepted == 0
-    {
+    Ok(RunReport {
+        windows,
+        stats: sink.stats(),
+    })
+}
+
+/// Refuses a run in which every event fell outside the sensor (a wrong `--width/--height`, or
+/// a file that states none).
+pub fn check_in_sensor(report: &RunReport, (width, height): (u16, u16)) -> Result<()> {
+    let s = report.stats;
+    if s.dropped_out_of_range > 0 && s.accepted == 0 {
         bail!("every event lies outside the {width}×{height} sensor");
     }
+    Ok(())
+}
+
+/// How `evpose raster` cuts and rasterizes a recording file.
+#[derive(Clone, Debug)]
+pub struct RasterOptions {
+    /// How to read the file (format, fallback sensor size, text time unit). `open.size`, when
+    /// given, is also the rasterizer's sensor size.
+    pub open: OpenOptions,
+    /// Time slices `K`.
+    pub slices: u8,
+    /// Events per window; `None` rasterizes the whole input as one window.
+    pub window_events: Option<u32>,
+    /// Camera to rasterize (multi-camera recordings).
+    pub camera: u8,
+    /// Count `window_events` over every camera's events ([`Windowing::shared_events`]).
+    pub all_camera_windows: bool,
+}
+
+impl Default for RasterOptions {
+    fn default() -> Self {
+        Self {
+            open: OpenOptions::default(),
+            slices: evpose_core::raster::DEFAULT_SLICES,
+            window_events: None,
+            camera: 0,
+            all_camera_windows: false,
+        }
+    }
+}
+
+/// What [`rasterize`] did.
+#[derive(Clone, Debug)]
+pub struct RasterReport {
+    /// Windows produced.
+    pub windows: usize,
+    /// The rasterizer's counters.
+    pub stats: RasterStats,
+    /// The sensor size used.
+    pub size: (u16, u16),
+}
+
+/// Rasterizes a recording file (`evpose raster`), calling `on_window(index, window)` for each
+/// closed window in order: windows of `window_events` events (the last may be shorter), or the
+/// whole input as one window (a counting pass first sizes it).
+pub fn rasterize(
+    path: &std::path::Path,
+    opts: &RasterOptions,
+    mut on_window: impl FnMut(usize, &Window<'_>) -> Result<()>,
+) -> Result<RasterReport> {
+    let mut reader = io::open_with(path, &opts.open)?;
+    let size = sensor_size(reader.info(), opts.camera, opts.open.size);
+    let capacity = match opts.window_events {
+        Some(n) => n,
+        None => {
+            let info = reader.info();
+            let n = match info.event_count {
+                Some(n) if info.cameras.len() <= 1 => n,
+                _ => count_events(io::open_with(path, &opts.open)?.as_mut(), opts.camera)
+                    .with_context(|| path.display().to_string())?,
+            };
+            u32::try_from(n).context("too many events for one window; pass --window-events")?
+        }
+    };
+    let mut sink = Rasterizing::new(rasterizer(size, opts.slices, capacity)?, |i, w| {
+        on_window(i, w)
+    });
+    let windowing = Windowing {
+        camera: opts.camera,
+        shared_events: opts.window_events.filter(|_| opts.all_camera_windows),
+    };
+    let report =
+        drive(reader.as_mut(), windowing, &mut sink).with_context(|| path.display().to_string())?;
+    if opts.open.size.is_none() {
+        check_in_sensor(&report, size)?;
+    }
     Ok(RasterReport {
-        info,
-        size: (width, height),
-        windows,
-        stats,
+        windows: report.windows,
+        stats: report.stats,
+        size,
     })
 }
 

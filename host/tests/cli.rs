@@ -69,8 +69,8 @@ fn convert_then_raster_reproduces_the_reference() {
         "--out",
         s(&converted),
     ]);
-    let (shape, a) = evpose_host::npy::read_exact::<f64>(&converted).unwrap();
-    let (_, b) = evpose_host::npy::read_f64(&fixture("street-03.events.npy")).unwrap();
+    let (shape, a) = evpose_host::array::read_exact::<f64>(&converted).unwrap();
+    let (_, b) = evpose_host::array::read_f64(&fixture("street-03.events.npy")).unwrap();
     assert_eq!(shape, vec![7500, 4]);
     assert_eq!(a, b);
 
@@ -86,8 +86,9 @@ fn convert_then_raster_reproduces_the_reference() {
         "--height",
         "260",
     ]);
-    let (_, got) = evpose_host::npy::read_exact::<f32>(&points).unwrap();
-    let (_, want) = evpose_host::npy::read_exact::<f32>(&fixture("street-03.points.npy")).unwrap();
+    let (_, got) = evpose_host::array::read_exact::<f32>(&points).unwrap();
+    let (_, want) =
+        evpose_host::array::read_exact::<f32>(&fixture("street-03.points.npy")).unwrap();
     assert_eq!(got, want);
 }
 
@@ -105,7 +106,7 @@ fn raster_with_windows_writes_numbered_files() {
     ]);
     for i in 0..3 {
         let p = out.with_file_name(format!("win-{i:03}.npy"));
-        let (shape, _) = evpose_host::npy::read_exact::<f32>(&p).unwrap();
+        let (shape, _) = evpose_host::array::read_exact::<f32>(&p).unwrap();
         assert_eq!(shape[1], 5);
         assert!(shape[0] > 0);
     }
@@ -119,7 +120,7 @@ fn unknown_format_and_missing_file_are_clear_errors() {
     assert!(evpose_err(&["info", s(&junk)]).contains("unknown event file format"));
     assert!(evpose_err(&["info", "/nonexistent/x.npy"]).contains("cannot open"));
     let bad_shape = tmp("bad.npy");
-    evpose_host::npy::write(&bad_shape, &[2, 3], &[0f64; 6]).unwrap();
+    evpose_host::array::write(&bad_shape, &[2, 3], &[0f64; 6]).unwrap();
     assert!(evpose_err(&["info", s(&bad_shape)]).contains("(N, 4)"));
 }
 
@@ -176,7 +177,7 @@ fn convert_dhp19_to_npy_per_camera_and_to_aedat4() {
 
     let c2 = tmp("dhp19-cam2.npy");
     evpose(&["convert", s(&path), "--out", s(&c2), "--camera", "2"]);
-    let (shape, rows) = evpose_host::npy::read_exact::<f64>(&c2).unwrap();
+    let (shape, rows) = evpose_host::array::read_exact::<f64>(&c2).unwrap();
     let want: Vec<f64> = events
         .iter()
         .filter(|e| e.cam == 2)
@@ -246,7 +247,7 @@ fn text_and_raw_need_no_header_size_or_unit_with_flags() {
     std::fs::write(&txt, encoders::text_seconds(&events)).unwrap();
     let npy = tmp("events-from-text.npy");
     evpose(&["convert", s(&txt), "--out", s(&npy)]);
-    let (_, rows) = evpose_host::npy::read_exact::<f64>(&npy).unwrap();
+    let (_, rows) = evpose_host::array::read_exact::<f64>(&npy).unwrap();
     assert_eq!(rows[2], events[0].t as f64);
     assert_eq!(rows[rows.len() - 2], events[499].t as f64);
     // Integer timestamps with --time-unit ms.
@@ -393,10 +394,10 @@ fn infer_engines_write_their_outputs() {
             "--repeat",
             "2",
         ]);
-        let (shape, vx) = evpose_host::npy::read_exact::<f32>(&x).unwrap();
+        let (shape, vx) = evpose_host::array::read_exact::<f32>(&x).unwrap();
         assert_eq!(shape, vec![13, 346]);
         let (_, want) =
-            evpose_host::npy::read_exact::<f32>(&fixture("street-02.small.simdr_x.npy")).unwrap();
+            evpose_host::array::read_exact::<f32>(&fixture("street-02.small.simdr_x.npy")).unwrap();
         let max = want.iter().fold(0f32, |m, v| m.max(v.abs()));
         assert!(
             vx.iter()
@@ -405,7 +406,7 @@ fn infer_engines_write_their_outputs() {
             "{engine}"
         );
         assert_eq!(
-            evpose_host::npy::read_exact::<f32>(&y).unwrap().0,
+            evpose_host::array::read_exact::<f32>(&y).unwrap().0,
             vec![13, 260]
         );
     }
@@ -425,7 +426,7 @@ fn infer_engines_write_their_outputs() {
         s(&y),
     ]);
     assert_eq!(
-        evpose_host::npy::read_exact::<i32>(&x).unwrap().0,
+        evpose_host::array::read_exact::<i32>(&x).unwrap().0,
         vec![13, 346]
     );
     assert!(evpose_err(&[

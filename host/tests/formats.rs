@@ -900,7 +900,7 @@ fn detection_and_open_dispatch() {
     assert_eq!(r.info().format, Format::Evt2);
     // The size fallback reaches formats that state none, npy included.
     let npy = dir.path().join("e.npy");
-    evpose_host::npy::write(&npy, &[1, 4], &[1.0f64, 2.0, 3.0, 1.0]).unwrap();
+    evpose_host::array::write(&npy, &[1, 4], &[1.0f64, 2.0, 3.0, 1.0]).unwrap();
     let opts = OpenOptions {
         size: Some((346, 260)),
         ..OpenOptions::default()

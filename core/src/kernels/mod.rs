@@ -361,6 +361,12 @@ impl Kernels {
         (self.requant)(acc, scales, leaky, out)
     }
 
+    /// [`Kernels::requantize_i8`] with one layer's [`Requant`](crate::quant::Requant).
+    #[inline]
+    pub fn requantize(&self, acc: &[i32], r: crate::quant::Requant<'_>, out: &mut [i8]) {
+        self.requantize_i8(acc, r.scales, r.leaky, out)
+    }
+
     /// [`reference::pool_i8`], bit-exact, compiled for this table's registers.
     #[inline]
     pub fn pool_i8(&self, max: &mut [i8], sum: &mut [i32], y: &[i8]) {

@@ -339,23 +339,55 @@ pub fn open(path: &Path, format: Option<Format>) -> anyhow::Result<Box<dyn Event
 /// may lack the `% evt` line; the RAW reader then asks for `--format evt2|evt3`).
 pub fn open_with(path: &Path, opts: &OpenOptions) -> anyhow::Result<Box<dyn EventReader>> {
     use anyhow::Context;
+    let file = BufReader::with_capacity(
+        1 << 16,
+        File::open(path).with_context(|| format!("cannot open {}", path.display()))?,
+    );
+    let raw_name = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("raw"));
+    from_source(file, &path.display().to_string(), opts, raw_name)
+}
+
+/// Opens a recording held in memory (an embedded sample, a recording just simulated), as
+/// [`open_with`] opens a file.
+pub fn open_bytes(
+    bytes: impl AsRef<[u8]> + Send + 'static,
+    name: &str,
+    opts: &OpenOptions,
+) -> anyhow::Result<Box<dyn EventReader>> {
+    from_source(std::io::Cursor::new(bytes), name, opts, false)
+}
+
+/// A reader over any byte source: the format is `opts.format`, or detected from the first
+/// [`DETECT_BYTES`] (`raw_name`: a detected `dat` is read as `raw`). `name` names the source in
+/// errors.
+pub fn from_source<S: Read + Send + 'static>(
+    mut source: S,
+    name: &str,
+    opts: &OpenOptions,
+    raw_name: bool,
+) -> anyhow::Result<Box<dyn EventReader>> {
+    use anyhow::Context;
+    let mut head = vec![
+        0u8;
+        if opts.format.is_some() {
+            0
+        } else {
+            DETECT_BYTES
+        }
+    ];
+    let n = read_up_to(&mut source, &mut head).with_context(|| format!("cannot read {name}"))?;
+    head.truncate(n);
     let format = match opts.format {
         Some(f) => f,
         None => {
-            let mut file =
-                File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-            let mut head = vec![0u8; DETECT_BYTES];
-            let n = read_up_to(&mut file, &mut head)?;
-            let detected = Format::detect(&head[..n]).with_context(|| {
+            let detected = Format::detect(&head).with_context(|| {
                 format!(
-                    "{}: unknown event file format (first bytes {:02x?}); pass --format",
-                    path.display(),
+                    "{name}: unknown event file format (first bytes {:02x?}); pass --format",
                     &head[..n.min(16)]
                 )
             })?;
-            let raw_name = path
-                .extension()
-                .is_some_and(|e| e.eq_ignore_ascii_case("raw"));
             if detected == Format::Dat && raw_name {
                 Format::Raw
             } else {
@@ -363,10 +395,8 @@ pub fn open_with(path: &Path, opts: &OpenOptions) -> anyhow::Result<Box<dyn Even
             }
         }
     };
-    let file = BufReader::with_capacity(
-        1 << 16,
-        File::open(path).with_context(|| format!("cannot open {}", path.display()))?,
-    );
+    // The bytes read for detection, then the rest of the source.
+    let file = std::io::Cursor::new(head).chain(source);
     let size = opts.size;
     let reader: Box<dyn EventReader> = match format {
         Format::Npy => Box::new(WithSize::new(npy::NpyReader::new(file)?, size)),
@@ -384,6 +414,23 @@ pub fn open_with(path: &Path, opts: &OpenOptions) -> anyhow::Result<Box<dyn Even
         Format::Text => Box::new(text::TextReader::new(file, opts.time_unit, size)?),
     };
     Ok(reader)
+}
+
+/// Reads every event of `camera` into memory.
+pub fn read_camera(reader: &mut dyn EventReader, camera: u8) -> Result<Vec<Event>, ReadError> {
+    let mut batch = Batch::default();
+    let mut events = Vec::new();
+    while reader.read_batch(&mut batch)? {
+        events.extend(
+            batch
+                .events
+                .iter()
+                .zip(&batch.cameras)
+                .filter(|(_, &c)| c == camera)
+                .map(|(e, _)| *e),
+        );
+    }
+    Ok(events)
 }
 
 /// A reader whose header may lack the sensor size, with the caller's fallback filled in.

@@ -5,7 +5,7 @@ use std::io::Read;
 use evpose_core::Event;
 
 use super::{Batch, EventReader, Format, ReadError, StreamInfo, BATCH_EVENTS};
-use crate::npy::{stream_f64, Values};
+use crate::array::{stream_f64, Values};
 
 /// Streaming reader of an (N, 4) `.npy` event array.
 pub struct NpyReader<R> {

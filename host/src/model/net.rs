@@ -2,8 +2,10 @@
 
 use anyhow::{ensure, Result};
 use evpose_core::model::{
-    DType, LayerKind, WeightType, ALIGN, CRC, ENTRY_LEN, FEATURES, HEADER_LEN, MAGIC, VERSION,
+    DType, LayerKind, Preprocessing, WeightType, ALIGN, CRC, ENTRY_LEN, FEATURES, HEADER_LEN,
+    MAGIC, VERSION,
 };
+use evpose_core::{pack_point_layers, packed_bytes, Model, PackedLayout, PackedWeights};
 
 /// A dense layer: `y = act(W x + b)` with `W` stored `[out][in]`.
 #[derive(Clone, Debug, PartialEq)]
@@ -108,6 +110,8 @@ pub struct BlobHeader {
     pub input_shifts: [u8; FEATURES],
     /// int8 average-pool constant.
     pub avg_scale: f32,
+    /// The preprocessing the model expects.
+    pub preprocessing: Preprocessing,
 }
 
 /// Little-endian bytes of a slice of numbers.
@@ -139,19 +143,23 @@ pub fn write_blob(h: &BlobHeader, layers: &[BlobLayer]) -> Result<Vec<u8>> {
     let table = HEADER_LEN;
     let mut data = (table + layers.len() * ENTRY_LEN).next_multiple_of(ALIGN);
     let mut out = vec![0u8; data];
-    out[..4].copy_from_slice(&MAGIC);
-    out[4..6].copy_from_slice(&VERSION.to_le_bytes());
-    out[6] = h.dtype as u8;
-    put_u16(&mut out, 16, layers.len())?;
-    put_u16(&mut out, 18, h.point_layers)?;
-    put_u16(&mut out, 20, h.joints)?;
-    put_u16(&mut out, 22, h.width)?;
-    put_u16(&mut out, 24, h.height)?;
-    put_u16(&mut out, 26, h.head_dim)?;
-    out[28..28 + FEATURES].copy_from_slice(&h.input_shifts);
-    put_u32(&mut out, 36, h.avg_scale.to_bits());
-    put_u32(&mut out, 40, table as u32);
-    put_u32(&mut out, 44, data as u32);
+    use evpose_core::model::{entry as f, header as o};
+    out[o::MAGIC..o::MAGIC + 4].copy_from_slice(&MAGIC);
+    out[o::VERSION..o::VERSION + 2].copy_from_slice(&VERSION.to_le_bytes());
+    out[o::DTYPE] = h.dtype as u8;
+    put_u16(&mut out, o::LAYERS, layers.len())?;
+    put_u16(&mut out, o::POINT_LAYERS, h.point_layers)?;
+    put_u16(&mut out, o::JOINTS, h.joints)?;
+    put_u16(&mut out, o::WIDTH, h.width)?;
+    put_u16(&mut out, o::HEIGHT, h.height)?;
+    put_u16(&mut out, o::HEAD_DIM, h.head_dim)?;
+    out[o::INPUT_SHIFTS..o::INPUT_SHIFTS + FEATURES].copy_from_slice(&h.input_shifts);
+    put_u32(&mut out, o::AVG_SCALE, h.avg_scale.to_bits());
+    put_u32(&mut out, o::TABLE, table as u32);
+    put_u32(&mut out, o::DATA, data as u32);
+    put_u32(&mut out, o::POINTS, h.preprocessing.points);
+    put_u32(&mut out, o::WINDOW_EVENTS, h.preprocessing.window_events);
+    out[o::SLICES] = h.preprocessing.slices;
     let mut append = |out: &mut Vec<u8>, bytes: &[u8]| -> u32 {
         if bytes.is_empty() {
             return 0;
@@ -169,21 +177,21 @@ pub fn write_blob(h: &BlobHeader, layers: &[BlobLayer]) -> Result<Vec<u8>> {
         let b = append(&mut out, &l.bias);
         let s = append(&mut out, &l.scales);
         let e = table + i * ENTRY_LEN;
-        out[e] = l.kind as u8;
-        out[e + 1] = u8::from(l.leaky.is_some());
-        out[e + 2] = l.weight_type as u8;
-        put_u32(&mut out, e + 4, l.in_dim as u32);
-        put_u32(&mut out, e + 8, l.out_dim as u32);
-        put_u32(&mut out, e + 12, l.sources);
-        put_u32(&mut out, e + 16, w);
-        put_u32(&mut out, e + 20, b);
-        put_u32(&mut out, e + 24, s);
-        put_u32(&mut out, e + 28, l.leaky.unwrap_or(0.0).to_bits());
+        out[e + f::KIND] = l.kind as u8;
+        out[e + f::FLAGS] = u8::from(l.leaky.is_some());
+        out[e + f::WEIGHT_TYPE] = l.weight_type as u8;
+        put_u32(&mut out, e + f::IN_DIM, l.in_dim as u32);
+        put_u32(&mut out, e + f::OUT_DIM, l.out_dim as u32);
+        put_u32(&mut out, e + f::SOURCES, l.sources);
+        put_u32(&mut out, e + f::WEIGHTS, w);
+        put_u32(&mut out, e + f::BIAS, b);
+        put_u32(&mut out, e + f::SCALES, s);
+        put_u32(&mut out, e + f::ALPHA, l.leaky.unwrap_or(0.0).to_bits());
     }
     let total = out.len() as u32;
-    put_u32(&mut out, 8, total);
-    let crc = CRC.checksum(&out[16..]);
-    put_u32(&mut out, 12, crc);
+    put_u32(&mut out, o::TOTAL, total);
+    let crc = CRC.checksum(&out[o::CRC_FROM..]);
+    put_u32(&mut out, o::CRC, crc);
     Ok(out)
 }
 
@@ -213,15 +221,21 @@ pub fn f32_blob(net: &FloatNet) -> Result<Vec<u8>> {
             point_layers: net.point.len(),
             input_shifts: [0; FEATURES],
             avg_scale: 0.0,
+            preprocessing: Preprocessing {
+                points: net.points.unwrap_or(0) as u32,
+                ..Preprocessing::default()
+            },
         },
         &layers,
     )
 }
 
-/// A blob in 16-byte-aligned memory, as the core requires for reading weights in place.
+/// A blob in 16-byte-aligned memory, as the core requires for reading weights in place, with
+/// its int8 point layers packed for the packed kernel on first use ([`AlignedBlob::packed`]).
 pub struct AlignedBlob {
     words: Vec<u128>,
     len: usize,
+    packed: std::sync::OnceLock<Option<(PackedLayout, Vec<u8>)>>,
 }
 
 impl AlignedBlob {
@@ -232,7 +246,24 @@ impl AlignedBlob {
         Self {
             words,
             len: bytes.len(),
+            packed: std::sync::OnceLock::new(),
         }
+    }
+
+    /// The packed point-layer weights of `model` (parsed from this blob), packed once, on the
+    /// first call; `None` for a model without int8 point layers.
+    pub fn packed<'b>(&'b self, model: &Model<'b>) -> anyhow::Result<Option<PackedWeights<'b>>> {
+        let packed = self.packed.get_or_init(|| {
+            let mut buf = vec![0; packed_bytes(model)];
+            (!buf.is_empty())
+                .then(|| pack_point_layers(model, &mut buf).ok().map(|l| (l, buf)))
+                .flatten()
+        });
+        packed
+            .as_ref()
+            .map(|(layout, buf)| layout.weights(model, buf))
+            .transpose()
+            .map_err(|e| anyhow::anyhow!("{e}"))
     }
 
     /// The bytes.

@@ -17,7 +17,7 @@ use tract_onnx::pb::{
     type_proto,
 };
 
-use super::quant::{QLayer, QWeights, QuantNet};
+use super::quantize::{QLayer, QWeights, QuantNet};
 
 const OPSET: i64 = 13;
 
@@ -344,4 +344,12 @@ pub fn build(q: &QuantNet) -> Result<Vec<u8>> {
         ..Default::default()
     };
     Ok(model.encode_to_vec())
+}
+
+impl QuantNet {
+    /// The same integer computation as a standard ONNX graph (opset 13) with int32 outputs
+    /// `simdr_x` `(1, J, W)` and `simdr_y` `(1, J, H)`.
+    pub fn onnx(&self) -> Result<Vec<u8>> {
+        build(self)
+    }
 }

@@ -11,52 +11,13 @@
 
 use std::fs::File;
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use anyhow::{bail, Context, Result};
-use clap::Args;
+use anyhow::{Context, Result};
 use evpose_core::geometry::{triangulate_joints, Camera, GeometryError};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
-use crate::dhp19;
-
-/// Arguments of `evpose triangulate`.
-#[derive(Args, Debug)]
-pub struct TriangulateArgs {
-    /// Two outputs of `evpose pose --json` (JSON lines), one per camera, in the order of
-    /// `--cameras`; each window of the first is paired with the window of the second whose
-    /// time span (`t_us`) overlaps it most (by position in the files when `t_us` is absent).
-    #[arg(
-        num_args = 2,
-        value_names = ["POSES_A", "POSES_B"],
-        required_unless_present = "joints_a",
-        conflicts_with = "joints_a"
-    )]
-    pub poses: Vec<PathBuf>,
-    /// Explicit 2-D joints seen by the first camera, `u,v` pairs separated by spaces or `;`
-    /// (pixels), instead of pose files.
-    #[arg(long, requires = "joints_b", allow_hyphen_values = true)]
-    pub joints_a: Option<String>,
-    /// Explicit 2-D joints seen by the second camera, as `--joints-a`.
-    #[arg(long, requires = "joints_a", allow_hyphen_values = true)]
-    pub joints_b: Option<String>,
-    /// DHP19 camera channels (aedat channel ids, 0–3) of the two views, `A,B`; the default,
-    /// the front pair, is DHP19's evaluation pair.
-    #[arg(long, value_delimiter = ',', default_values_t = dhp19::FRONT_CHANNELS)]
-    pub cameras: Vec<u8>,
-    /// Directory with DHP19's `P1..P4.npy` and `camera_positions.npy` (default: the
-    /// calibration bundled in the binary, `assets/dhp19`).
-    #[arg(long)]
-    pub calibration: Option<PathBuf>,
-    /// Pair windows by their position in the files instead of by time: for pose files made
-    /// with `--all-camera-windows`, where window `i` is the same stretch of the recording for
-    /// every camera.
-    #[arg(long)]
-    pub by_position: bool,
-    /// Print JSON lines instead of text.
-    #[arg(long)]
-    pub json: bool,
-}
+use crate::pose::WindowPose;
 
 /// One window's 3-D pose.
 #[derive(Clone, Debug, Serialize)]
@@ -68,14 +29,6 @@ pub struct WindowPose3d {
     /// Joints `[x, y, z]` in mm (DHP19's world frame), in the input's joint order; `null` for a
     /// joint that could not be triangulated (the reason goes to stderr).
     pub joints: Vec<Option<[f64; 3]>>,
-}
-
-/// The part of an `evpose pose --json` line this command reads.
-#[derive(Deserialize)]
-struct PoseLine {
-    joints: Vec<(f64, f64)>,
-    #[serde(default)]
-    t_us: Option<(i64, i64)>,
 }
 
 /// One camera's window: its 2-D joints and, from a pose file, its first and last timestamp.
@@ -116,41 +69,6 @@ pub fn pair_windows(a: &[View], b: &[View], by_position: bool) -> Vec<(usize, Op
         .collect()
 }
 
-/// Runs `evpose triangulate`.
-pub fn triangulate(a: &TriangulateArgs) -> Result<()> {
-    let [ca, cb] = a.cameras[..] else {
-        bail!("--cameras takes two channels, got {:?}", a.cameras);
-    };
-    let camera = |c| match &a.calibration {
-        Some(dir) => dhp19::camera(dir, c),
-        None => dhp19::bundled_camera(c),
-    };
-    let (cam_a, cam_b) = (camera(ca)?, camera(cb)?);
-    let explicit = |text: &str, what: &str| -> Result<Vec<View>> {
-        let joints = parse_joints(text).with_context(|| what.to_owned())?;
-        Ok(vec![View { joints, t_us: None }])
-    };
-    let (views_a, views_b) = match (&a.joints_a, &a.joints_b, &a.poses[..]) {
-        (Some(ja), Some(jb), _) => (explicit(ja, "--joints-a")?, explicit(jb, "--joints-b")?),
-        (_, _, [pa, pb]) => (read_poses(pa)?, read_poses(pb)?),
-        _ => bail!("give two pose files, or --joints-a and --joints-b"),
-    };
-    for (window, pair) in pair_windows(&views_a, &views_b, a.by_position) {
-        let Some(window_b) = pair else {
-            eprintln!("note: window {window} of the first camera has no partner; skipped");
-            continue;
-        };
-        let (ja, jb) = (&views_a[window].joints, &views_b[window_b].joints);
-        let pose = triangulate_window(&cam_a, ja, &cam_b, jb, (window, window_b))?;
-        if a.json {
-            println!("{}", serde_json::to_string(&pose)?);
-        } else {
-            print_text(&pose);
-        }
-    }
-    Ok(())
-}
-
 /// Triangulates the joints of window `window` of the first camera and `window_b` of the
 /// second; a joint that fails is `None`, reported on stderr.
 pub fn triangulate_window(
@@ -178,23 +96,6 @@ pub fn triangulate_window(
     })
 }
 
-fn print_text(p: &WindowPose3d) {
-    let js: Vec<String> = p
-        .joints
-        .iter()
-        .map(|j| match j {
-            Some([x, y, z]) => format!("({x:.1},{y:.1},{z:.1})"),
-            None => "-".to_owned(),
-        })
-        .collect();
-    println!(
-        "window {:>3} + {:>3}  joints mm {}",
-        p.window,
-        p.window_b,
-        js.join(" ")
-    );
-}
-
 /// Reads the `joints` and `t_us` of every line of an `evpose pose --json` output (blank lines
 /// skipped).
 pub fn read_poses(path: &Path) -> Result<Vec<View>> {
@@ -205,7 +106,7 @@ pub fn read_poses(path: &Path) -> Result<Vec<View>> {
         if line.trim().is_empty() {
             continue;
         }
-        let pose: PoseLine = serde_json::from_str(&line).with_context(|| {
+        let pose: WindowPose = serde_json::from_str(&line).with_context(|| {
             format!(
                 "{} line {}: not an `evpose pose --json` line",
                 path.display(),
@@ -213,7 +114,11 @@ pub fn read_poses(path: &Path) -> Result<Vec<View>> {
             )
         })?;
         windows.push(View {
-            joints: pose.joints,
+            joints: pose
+                .joints
+                .iter()
+                .map(|&(u, v)| (f64::from(u), f64::from(v)))
+                .collect(),
             t_us: pose.t_us,
         });
     }

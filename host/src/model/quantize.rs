@@ -18,9 +18,9 @@
 
 use anyhow::{ensure, Result};
 use evpose_core::infer::MAX_BLOCK;
-use evpose_core::model::{DType, LayerKind, WeightType, FEATURES};
+use evpose_core::model::{DType, LayerKind, Preprocessing, WeightType, FEATURES};
 use evpose_core::quant::{InputCoding, FIRST_BIAS_LIMIT, FIRST_WEIGHT_LIMIT};
-use evpose_core::{run_f32_observed, scratch_words_for_block, Model, Stage};
+use evpose_core::{scratch_words_for_block, Model, Plan, Stage};
 
 use super::net::{
     f32_blob, le_bytes, write_blob, AlignedBlob, BlobHeader, BlobLayer, Dense, FloatNet,
@@ -48,6 +48,8 @@ pub fn calibrate(net: &FloatNet, inputs: &[Vec<[f32; 5]>]) -> Result<Ranges> {
     let blob = AlignedBlob::new(&f32_blob(net)?);
     let model = Model::parse(blob.bytes()).map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut scratch = vec![0f32; scratch_words_for_block(&model, MAX_BLOCK)];
+    let plan = Plan::new(&model, *super::kernels(), scratch.len())
+        .map_err(|e| anyhow::anyhow!("calibration plan: {e}"))?;
     let mut x = vec![0f32; model.joints() * model.width()];
     let mut y = vec![0f32; model.joints() * model.height()];
     let pooled = net.pooled_width();
@@ -59,9 +61,7 @@ pub fn calibrate(net: &FloatNet, inputs: &[Vec<[f32; 5]>]) -> Result<Ranges> {
     };
     let absmax = |v: &[f32]| v.iter().fold(0f32, |m, x| m.max(x.abs()));
     for points in inputs {
-        run_f32_observed(
-            super::kernels(),
-            &model,
+        plan.run_f32_observed(
             points,
             &mut scratch,
             &mut x,
@@ -124,6 +124,8 @@ pub struct QuantNet {
     pub head_dim: usize,
     /// Fixed point count of the source model.
     pub points: Option<usize>,
+    /// The preprocessing recorded in the blob (points, window events, time slices).
+    pub preprocessing: Preprocessing,
 }
 
 /// Activation scale from a range: `max|y| / 127` (1 for a layer that never fired).
@@ -241,6 +243,10 @@ pub fn quantize(net: &FloatNet, ranges: &Ranges) -> Result<QuantNet> {
         joints: net.joints,
         head_dim: net.head_dim(),
         points: net.points,
+        preprocessing: Preprocessing {
+            points: net.points.unwrap_or(0) as u32,
+            ..Preprocessing::default()
+        },
     })
 }
 
@@ -298,14 +304,9 @@ impl QuantNet {
                 point_layers: self.point_layers,
                 input_shifts: self.coding.shifts,
                 avg_scale: self.avg_scale,
+                preprocessing: self.preprocessing,
             },
             &layers,
         )
-    }
-
-    /// The same integer computation as a standard ONNX graph (opset 13) with int32 outputs
-    /// `simdr_x` `(1, J, W)` and `simdr_y` `(1, J, H)`.
-    pub fn onnx(&self) -> Result<Vec<u8>> {
-        super::qonnx::build(self)
     }
 }

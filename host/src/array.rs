@@ -1,4 +1,4 @@
-//! NumPy `.npy` helpers: read any numeric array as f64, stream it, write f32/f64/i32 arrays.
+//! NumPy `.npy` array files: read any numeric array as f64, stream it, write f32/f64/i32 arrays.
 
 use std::fs::File;
 use std::io::{self, BufReader, BufWriter, Read};

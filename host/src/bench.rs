@@ -1,0 +1,197 @@
+//! Benchmarks: rasterization throughput and inference latency of every engine in one run.
+//! Figures are measured, never asserted (see the README's figures and the scripts that
+//! produce them).
+
+#[cfg(feature = "onnx")]
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::Result;
+use evpose_core::{RasterConfig, Rasterizer, WindowRule};
+use serde::Serialize;
+
+use crate::pipeline::VecStorage;
+#[cfg(feature = "onnx")]
+use crate::{
+    inputs,
+    model::{self, quantize, AlignedBlob, CoreRunner, TractModel},
+};
+
+/// Result of `evpose bench raster`.
+#[derive(Clone, Debug, Serialize)]
+pub struct RasterBench {
+    /// Events pushed per pass.
+    pub events: u64,
+    /// Windows closed per pass.
+    pub windows: u64,
+    /// Points produced per pass.
+    pub points: u64,
+    /// Passes timed.
+    pub iterations: u32,
+    /// Wall time per pass, seconds.
+    pub seconds_per_pass: f64,
+    /// Throughput.
+    pub events_per_second: f64,
+}
+
+/// Pushes `events` through a DAVIS346 rasterizer `iterations` times; returns the timing.
+pub fn raster(
+    events: &[evpose_core::Event],
+    window_events: u32,
+    iterations: u32,
+) -> Result<RasterBench> {
+    let config = RasterConfig {
+        window: WindowRule::Events(window_events),
+        ..RasterConfig::DAVIS346
+    };
+    let mut r = Rasterizer::new(config, VecStorage::new(window_events as usize, &config))?;
+    let mut run_once = || {
+        let (mut windows, mut points) = (0u64, 0u64);
+        let mut rest = events;
+        while !rest.is_empty() {
+            let (used, window) = r.extend(rest);
+            if let Some(w) = window {
+                windows += 1;
+                points += w.len() as u64;
+            }
+            rest = &rest[used..];
+        }
+        if r.buffered() > 0 {
+            points += r.flush().len() as u64;
+            windows += 1;
+        }
+        (windows, points)
+    };
+    let (windows, points) = run_once(); // warm-up
+    let start = Instant::now();
+    for _ in 0..iterations {
+        std::hint::black_box(run_once());
+    }
+    let secs = start.elapsed().as_secs_f64() / f64::from(iterations.max(1));
+    Ok(RasterBench {
+        events: events.len() as u64,
+        windows,
+        points,
+        iterations,
+        seconds_per_pass: secs,
+        events_per_second: events.len() as f64 / secs,
+    })
+}
+
+/// Result of `evpose bench infer`.
+#[derive(Clone, Debug, Serialize)]
+pub struct InferBench {
+    /// Points per inference.
+    pub points: usize,
+    /// Multiply-accumulates per inference.
+    pub macs: u64,
+    /// Median latency per engine, ms: tract f32, core f32, core i8.
+    pub tract_f32_ms: f64,
+    /// Core f32 engine.
+    pub core_f32_ms: f64,
+    /// Core int8 engine.
+    pub core_i8_ms: f64,
+    /// tract f32 / core i8.
+    pub speedup_i8_vs_tract: f64,
+    /// core f32 / core i8.
+    pub speedup_i8_vs_f32: f64,
+    /// Core int8 MACs per second.
+    pub i8_gmacs: f64,
+    /// This CPU's one-thread int8 peak for that kernel family, GMAC/s (a loop of independent
+    /// multiply-accumulate instructions, best of 5); absent for the reference kernels.
+    pub peak_gmacs: Option<f64>,
+    /// `i8_gmacs / peak_gmacs`.
+    pub fraction_of_peak: Option<f64>,
+    /// Kernel family the int8 engine used, and whether over packed weights.
+    pub kernels: String,
+}
+
+#[cfg(feature = "onnx")]
+fn median_ms(iters: u32, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
+    f()?; // warm-up
+    let mut t: Vec<f64> = Vec::new();
+    for _ in 0..iters.max(1) {
+        let s = Instant::now();
+        f()?;
+        t.push(s.elapsed().as_secs_f64() * 1e3);
+    }
+    t.sort_by(f64::total_cmp);
+    Ok(t[t.len() / 2])
+}
+
+/// GMAC/s of [`evpose_core::kernels::peak_loop`] for `isa`, best of 5 runs of 120 M
+/// instructions each (about 15 ms at two per cycle and 4 GHz: long against the timer and the
+/// clock's ramp to its AVX-512 frequency).
+#[cfg(feature = "onnx")]
+fn peak_gmacs(isa: evpose_core::kernels::Isa) -> Option<f64> {
+    let iters = 10_000_000;
+    (0..5)
+        .map(|_| {
+            let t = Instant::now();
+            let macs = evpose_core::kernels::peak_loop(isa, iters)?;
+            Some(macs as f64 / t.elapsed().as_secs_f64() / 1e9)
+        })
+        .try_fold(0.0f64, |best, g| g.map(|g| best.max(g)))
+}
+
+/// Times tract f32, the core's f32 engine and its int8 engine (the model quantized on the
+/// input itself) on one input of `model`'s point count: `points` (an (N, 5) cloud or a
+/// recording), or the bundled street window. Each engine is loaded once, then timed (as
+/// onnxruntime's session is created once): blob checks and weight packing are not part of an
+/// inference. Feature `onnx`.
+#[cfg(feature = "onnx")]
+pub fn infer(onnx: &Path, points: Option<&Path>, iterations: u32) -> Result<InferBench> {
+    let net = model::import_onnx(onnx)?;
+    let n = net.points.unwrap_or(evpose_core::pipeline::DEFAULT_POINTS);
+    let sampling = inputs::Sampling {
+        points: Some(n),
+        window_events: evpose_core::raster::DEFAULT_WINDOW_EVENTS,
+        seed: 0,
+        max_windows: 1,
+        open: Default::default(),
+    };
+    let input = match points {
+        Some(p) => inputs::load(&[p.to_path_buf()], &sampling, net.points)?,
+        None => {
+            let mut rng = evpose_core::sample::rng_from_seed(0);
+            inputs::from_reader(
+                crate::assets::street_window()?.as_mut(),
+                &sampling,
+                n,
+                &mut rng,
+            )?
+        }
+    }
+    .swap_remove(0);
+    let fblob = AlignedBlob::new(&model::f32_blob(&net)?);
+    let ranges = quantize::calibrate(&net, std::slice::from_ref(&input))?;
+    let qblob = AlignedBlob::new(&quantize::quantize(&net, &ranges)?.blob()?);
+    let mut tract = TractModel::load(onnx)?;
+    let mut core_f32 = CoreRunner::new(&fblob)?;
+    let mut core_i8 = CoreRunner::new(&qblob)?;
+    let m = core_f32.model();
+    let macs = m.macs_per_point() * n as u64 + m.macs_after_pooling();
+    let tract_ms = median_ms(iterations, || tract.run(&input).map(|_| ()))?;
+    let f32_ms = median_ms(iterations, || core_f32.run_f32(&input).map(|_| ()))?;
+    let i8_ms = median_ms(iterations, || core_i8.run_i8(&input).map(|_| ()))?;
+    let k = model::kernels();
+    let peak = peak_gmacs(k.isa());
+    let i8_gmacs = macs as f64 / (i8_ms * 1e-3) / 1e9;
+    Ok(InferBench {
+        points: n,
+        macs,
+        tract_f32_ms: tract_ms,
+        core_f32_ms: f32_ms,
+        core_i8_ms: i8_ms,
+        speedup_i8_vs_tract: tract_ms / i8_ms,
+        speedup_i8_vs_f32: f32_ms / i8_ms,
+        i8_gmacs,
+        peak_gmacs: peak,
+        fraction_of_peak: peak.map(|p| i8_gmacs / p),
+        kernels: if core_i8.is_packed() && k.has_packed() {
+            format!("{}, packed weights", k.name())
+        } else {
+            k.name().into()
+        },
+    })
+}

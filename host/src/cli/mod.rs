@@ -1,0 +1,346 @@
+//! The `evpose` command line: argument definitions, one function per command that calls the
+//! library and prints. Nothing here is imported by tests or other modules; the work lives in
+//! the library modules ([`crate::pose`], [`crate::pipeline`], [`crate::convert`], …).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Result};
+use clap::{Args, Parser, Subcommand};
+
+use crate::io::{self, Format};
+use crate::pipeline::{self, RasterOptions};
+use crate::summary::summarize_with;
+use crate::{array, assets, bench, convert};
+
+pub mod budget;
+#[cfg(feature = "onnx")]
+pub mod model;
+pub mod pose;
+pub mod triangulate;
+
+/// Human pose from event cameras: rasterization, inference and budgets for MCUs.
+#[derive(Parser, Debug)]
+#[command(name = "evpose", version, about)]
+pub struct Cli {
+    /// The command to run.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// `evpose` commands.
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Describe a recording: format, resolution, event counts, time span.
+    Info(InfoArgs),
+    /// Convert a recording to an (N, 4) float64 `.npy` array [x, y, t_us, p].
+    Convert(ConvertArgs),
+    /// Rasterize events into event point clouds [x, y, t_avg, p_acc, cnt] (float32 .npy).
+    Raster(RasterArgs),
+    /// Estimate 2-D joints per event window: rasterize, sample, run the model, decode.
+    Pose(pose::PoseArgs),
+    /// Run a model on a point cloud: tract, the core's f32 engine or its int8 engine.
+    #[cfg(feature = "onnx")]
+    Infer(model::InferArgs),
+    /// Calibrate and quantize a float ONNX model to an int8 blob and its ONNX twin.
+    #[cfg(feature = "onnx")]
+    Quantize(model::QuantizeArgs),
+    /// Check that the core's int8 engine and tract on the quantized ONNX agree exactly.
+    #[cfg(feature = "onnx")]
+    Parity(model::ParityArgs),
+    /// Per-layer MACs and bytes of a model, and a firmware image's flash and RAM.
+    Budget(budget::BudgetArgs),
+    /// Triangulate two DHP19 cameras' 2-D joints (`pose --json` outputs) to 3-D joints in mm.
+    Triangulate(triangulate::TriangulateArgs),
+    /// Measure throughput.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+/// Arguments of `evpose info`.
+#[derive(Args, Debug)]
+pub struct InfoArgs {
+    /// Recording to describe.
+    pub file: PathBuf,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// How to read the recording.
+    #[command(flatten)]
+    pub input: InputArgs,
+}
+
+/// Arguments of `evpose convert`.
+#[derive(Args, Debug)]
+pub struct ConvertArgs {
+    /// Recording to convert.
+    pub file: PathBuf,
+    /// Output: `.npy` ((N, 4) float64 `[x, y, t_us, p]`, one camera) or `.aedat4` (one event
+    /// stream per camera, LZ4, readable by DV tools).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Camera to export (default: camera 0 for `.npy`, every camera for `.aedat4`).
+    #[arg(long)]
+    pub camera: Option<u8>,
+    /// How to read the recording.
+    #[command(flatten)]
+    pub input: InputArgs,
+}
+
+/// How `info` and `convert` read a recording: the format, and what the file may not say.
+#[derive(Args, Clone, Debug, Default, PartialEq, Eq)]
+pub struct InputArgs {
+    /// File format (default: detected from the header).
+    #[arg(long, value_enum)]
+    pub format: Option<Format>,
+    /// Sensor width, for files that state no size (with --height).
+    #[arg(long, requires = "height")]
+    pub width: Option<u16>,
+    /// Sensor height, for files that state no size (with --width).
+    #[arg(long, requires = "width")]
+    pub height: Option<u16>,
+    /// Unit of text timestamps (default: seconds if the first lines have a decimal point,
+    /// else microseconds).
+    #[arg(long, value_enum)]
+    pub time_unit: Option<io::TimeUnit>,
+}
+
+impl InputArgs {
+    /// The reader options these arguments give.
+    pub fn options(&self) -> io::OpenOptions {
+        io::OpenOptions {
+            format: self.format,
+            size: self.width.zip(self.height),
+            time_unit: self.time_unit,
+        }
+    }
+}
+
+/// Arguments of `evpose raster`.
+#[derive(Args, Debug)]
+pub struct RasterArgs {
+    /// Recording to rasterize.
+    #[arg(long)]
+    pub events: PathBuf,
+    /// Output `.npy`; with several windows, `OUT-000.npy`, `OUT-001.npy`, …
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Time slices K.
+    #[arg(long, default_value_t = 4)]
+    pub slices: u8,
+    /// Events per window (default: the whole input as one window).
+    #[arg(long)]
+    pub window_events: Option<u32>,
+    /// Camera to rasterize from multi-camera recordings.
+    #[arg(long, default_value_t = 0)]
+    pub camera: u8,
+    /// Count --window-events over the events of all cameras, rasterizing only --camera's, so
+    /// that every camera gets the same windows (DHP19's 30,000-event windows over its four
+    /// cameras).
+    #[arg(long, requires = "window_events")]
+    pub all_camera_windows: bool,
+    /// How to read the recording (format, sensor size, time unit).
+    #[command(flatten)]
+    pub input: InputArgs,
+}
+
+/// `evpose bench` targets.
+#[derive(Subcommand, Debug)]
+pub enum BenchCommand {
+    /// Rasterization throughput on 7,500-event windows (events per second).
+    Raster(BenchRasterArgs),
+    /// Inference latency: tract f32, core f32 and core int8, one thread.
+    #[cfg(feature = "onnx")]
+    Infer(model::BenchInferArgs),
+}
+
+/// Arguments of `evpose bench raster`.
+#[derive(Args, Debug)]
+pub struct BenchRasterArgs {
+    /// Events to rasterize, cut into windows (default: the bundled street windows).
+    #[arg(long)]
+    pub events: Option<PathBuf>,
+    /// Events per window.
+    #[arg(long, default_value_t = 7_500)]
+    pub window_events: u32,
+    /// Passes over the events.
+    #[arg(long, default_value_t = 200)]
+    pub iterations: u32,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// How to read --events.
+    #[command(flatten)]
+    pub input: InputArgs,
+}
+
+/// Runs a parsed command line.
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Info(a) => info(&a),
+        Command::Convert(a) => convert(&a),
+        Command::Raster(a) => raster(&a),
+        Command::Bench(BenchCommand::Raster(a)) => bench_raster(&a),
+        #[cfg(feature = "onnx")]
+        Command::Bench(BenchCommand::Infer(a)) => model::bench_infer(&a),
+        Command::Pose(a) => pose::pose(&a),
+        #[cfg(feature = "onnx")]
+        Command::Infer(a) => model::infer(&a),
+        #[cfg(feature = "onnx")]
+        Command::Quantize(a) => model::quantize(&a),
+        #[cfg(feature = "onnx")]
+        Command::Parity(a) => model::parity(&a),
+        Command::Budget(a) => budget::budget(&a),
+        Command::Triangulate(a) => triangulate::triangulate(&a),
+    }
+}
+
+fn info(a: &InfoArgs) -> Result<()> {
+    let s = summarize_with(&a.file, &a.input.options())?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&s)?);
+        return Ok(());
+    }
+    println!("file:       {}", s.file);
+    println!("format:     {}", s.format.name());
+    println!("events:     {}", s.events);
+    for c in &s.cameras {
+        let size = match (c.width, c.height) {
+            (Some(w), Some(h)) => format!("{w}x{h}"),
+            _ => "unknown".into(),
+        };
+        println!("camera {}:", c.camera);
+        if let Some(name) = &c.name {
+            println!("  name:       {name}");
+        }
+        println!("  resolution: {size}");
+        println!("  events:     {} ({} on, {} off)", c.events, c.on, c.off);
+        if let (Some(f), Some(l), Some(d)) = (c.first_t, c.last_t, c.duration_us) {
+            println!("  first t:    {f} us");
+            println!("  last t:     {l} us");
+            println!("  duration:   {:.6} s", d as f64 / 1e6);
+        }
+    }
+    let n = &s.notes;
+    for (count, what) in [
+        (n.skipped_records, "non-event records skipped"),
+        (n.skipped_packets, "non-event packets skipped"),
+        (
+            n.dropped_events,
+            "events dropped before the stream gave their time base",
+        ),
+        (n.timestamp_wraps, "timestamp counter wraps unwrapped"),
+    ] {
+        if count > 0 {
+            println!("note:       {count} {what}");
+        }
+    }
+    for a in &n.assumptions {
+        println!("assumed:    {a}");
+    }
+    Ok(())
+}
+
+fn convert(a: &ConvertArgs) -> Result<()> {
+    let ext = a
+        .out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    let opts = a.input.options();
+    let done = match ext.as_deref() {
+        Some("npy") => convert::to_npy(&a.file, &opts, a.camera.unwrap_or(0), &a.out)?,
+        Some("aedat4") => convert::to_aedat4(&a.file, &opts, a.camera, &a.out)?,
+        _ => bail!(
+            "{}: unknown output format; name the output .npy or .aedat4",
+            a.out.display()
+        ),
+    };
+    for w in &done.warnings {
+        eprintln!("warning: {w}");
+    }
+    let ids: Vec<String> = done.cameras.iter().map(u8::to_string).collect();
+    eprintln!(
+        "wrote {} events of camera(s) {} to {}{}",
+        done.events,
+        ids.join(", "),
+        a.out.display(),
+        if ext.as_deref() == Some("aedat4") {
+            " (AEDAT 4.0, LZ4; stream i holds the i-th of them)"
+        } else {
+            ""
+        }
+    );
+    Ok(())
+}
+
+/// Output path of window `index` when a run produces `total` windows.
+pub fn window_path(out: &Path, index: usize, several: bool) -> PathBuf {
+    if !several {
+        return out.to_path_buf();
+    }
+    let stem = out.file_stem().unwrap_or_default().to_string_lossy();
+    out.with_file_name(format!("{stem}-{index:03}.npy"))
+}
+
+fn raster(a: &RasterArgs) -> Result<()> {
+    let opts = RasterOptions {
+        open: a.input.options(),
+        slices: a.slices,
+        window_events: a.window_events,
+        camera: a.camera,
+        all_camera_windows: a.all_camera_windows,
+    };
+    let several = a.window_events.is_some();
+    let mut paths = Vec::new();
+    let report = pipeline::rasterize(&a.events, &opts, |i, w| {
+        let rows = pipeline::window_rows(w);
+        let path = window_path(&a.out, i, several);
+        array::write(&path, &[rows.len() as u64, 5], rows.as_flattened())?;
+        paths.push(path);
+        Ok(())
+    })?;
+    let size = report.size;
+    // One window from a windowed run keeps the plain name, as if no window size were given.
+    if several && paths.len() == 1 {
+        std::fs::rename(&paths[0], &a.out)?;
+        paths[0] = a.out.clone();
+    }
+    let s = report.stats;
+    eprintln!(
+        "{} window(s) from {} events ({}x{}, K={}); dropped {} out of range; wrote {}{}",
+        report.windows,
+        s.accepted,
+        size.0,
+        size.1,
+        a.slices,
+        s.dropped_out_of_range,
+        paths
+            .first()
+            .map(|p| p.display().to_string())
+            .unwrap_or_default(),
+        if paths.len() > 1 { " …" } else { "" }
+    );
+    Ok(())
+}
+
+fn bench_raster(a: &BenchRasterArgs) -> Result<()> {
+    let mut reader = match &a.events {
+        Some(path) => io::open_with(path, &a.input.options())?,
+        None => assets::street_window()?,
+    };
+    let events = io::read_camera(reader.as_mut(), 0)?;
+    let b = bench::raster(&events, a.window_events, a.iterations)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&b)?);
+    } else {
+        println!(
+            "raster: {} events, {} windows, {} points per pass; {:.1} us per pass; {:.1} M events/s",
+            b.events,
+            b.windows,
+            b.points,
+            b.seconds_per_pass * 1e6,
+            b.events_per_second / 1e6
+        );
+    }
+    Ok(())
+}

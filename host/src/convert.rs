@@ -1,0 +1,155 @@
+//! `evpose convert`: a recording to an (N, 4) `.npy` array or to AEDAT 4.0, streaming.
+
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use npyz::WriterBuilder;
+
+use crate::io::aedat4::{Aedat4Writer, Compression};
+use crate::io::{self, Batch, CameraInfo, OpenOptions};
+use crate::summary::summarize_with;
+
+/// What a conversion wrote.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Converted {
+    /// Events written.
+    pub events: u64,
+    /// Cameras written (the i-th AEDAT 4 stream holds the i-th).
+    pub cameras: Vec<u8>,
+    /// What the user should know (a camera without events, a missing sensor size).
+    pub warnings: Vec<String>,
+}
+
+/// Writes `camera`'s events of the recording `file` (read with `opts`) to `out` as an (N, 4)
+/// float64 `.npy` array `[x, y, t_us, p]`. Two streaming passes (count, then write): memory
+/// does not grow with the file.
+pub fn to_npy(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Result<Converted> {
+    let summary = summarize_with(file, opts)?;
+    let mut warnings = Vec::new();
+    let n = summary
+        .cameras
+        .iter()
+        .find(|c| c.camera == camera)
+        .map_or(0, |c| c.events);
+    if n == 0 && summary.events > 0 {
+        let ids: Vec<String> = summary
+            .cameras
+            .iter()
+            .filter(|c| c.events > 0)
+            .map(|c| c.camera.to_string())
+            .collect();
+        warnings.push(format!(
+            "camera {camera} has no events (cameras with events: {}); pass --camera",
+            ids.join(", ")
+        ));
+    }
+    let mut reader = io::open_with(file, opts)?;
+    let path = file;
+    let file =
+        std::fs::File::create(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let mut w = npyz::WriteOptions::<f64>::new()
+        .default_dtype()
+        .shape(&[n, 4])
+        .writer(std::io::BufWriter::new(file))
+        .begin_nd()?;
+    let mut batch = Batch::default();
+    let mut written = 0u64;
+    while reader
+        .read_batch(&mut batch)
+        .with_context(|| format!("{}", path.display()))?
+    {
+        for (e, &cam) in batch.events.iter().zip(&batch.cameras) {
+            if cam == camera {
+                w.extend([
+                    f64::from(e.x),
+                    f64::from(e.y),
+                    e.t as f64,
+                    f64::from(u8::from(e.on)),
+                ])?;
+                written += 1;
+            }
+        }
+    }
+    if written != n {
+        bail!("{} changed while converting", path.display());
+    }
+    w.finish()?;
+    Ok(Converted {
+        events: written,
+        cameras: vec![camera],
+        warnings,
+    })
+}
+
+/// Writes the recording `file` (read with `opts`) to `out` as AEDAT 4.0 (LZ4, one event
+/// stream per camera, readable by DV tools): every camera, or only `camera`.
+pub fn to_aedat4(
+    file: &Path,
+    opts: &OpenOptions,
+    camera: Option<u8>,
+    out: &Path,
+) -> Result<Converted> {
+    let summary = summarize_with(file, opts)?;
+    let mut warnings = Vec::new();
+    let mut cameras: Vec<CameraInfo> = summary
+        .cameras
+        .iter()
+        .filter(|c| camera.is_none_or(|want| want == c.camera))
+        .map(|c| CameraInfo {
+            id: c.camera,
+            width: c.width,
+            height: c.height,
+            name: c.name.clone(),
+        })
+        .collect();
+    if cameras.is_empty() {
+        let id = camera.unwrap_or(0);
+        let (width, height) = (opts.size.map(|s| s.0), opts.size.map(|s| s.1));
+        cameras.push(CameraInfo {
+            id,
+            width,
+            height,
+            name: None,
+        });
+    }
+    if cameras.iter().any(|c| c.width.is_none()) {
+        warnings.push(format!(
+            "{} states no sensor size; DV tools expect one: pass --width and --height",
+            file.display()
+        ));
+    }
+    let path = file;
+    let file =
+        std::fs::File::create(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let mut w = Aedat4Writer::new(std::io::BufWriter::new(file), &cameras, Compression::Lz4)?;
+    let mut reader = io::open_with(path, opts)?;
+    let mut batch = Batch::default();
+    let mut picked = Batch::default();
+    let mut written = 0u64;
+    while reader
+        .read_batch(&mut batch)
+        .with_context(|| format!("{}", path.display()))?
+    {
+        let part = match camera {
+            None => &batch,
+            Some(want) => {
+                picked.clear();
+                for (e, &cam) in batch.events.iter().zip(&batch.cameras) {
+                    if cam == want {
+                        picked.push(cam, *e);
+                    }
+                }
+                &picked
+            }
+        };
+        w.write(part)
+            .with_context(|| format!("cannot write {}", out.display()))?;
+        written += part.len() as u64;
+    }
+    w.finish()?;
+    Ok(Converted {
+        events: written,
+        cameras: cameras.iter().map(|c| c.id).collect(),
+        warnings,
+    })
+}

@@ -1,0 +1,135 @@
+//! tract running an ONNX file: the independent reference engine (feature `onnx`).
+
+use std::path::Path;
+
+use anyhow::{anyhow, bail, ensure, Context, Result};
+use tract_core::internal::DimLike;
+use tract_onnx::prelude::*;
+use tract_onnx::tract_hir::infer::Factoid;
+
+use super::Logits;
+
+/// An ONNX model prepared for tract, the independent reference engine.
+pub struct TractModel {
+    plan: Option<std::sync::Arc<TypedSimplePlan>>,
+    path: std::path::PathBuf,
+    fixed: Option<usize>,
+}
+
+impl TractModel {
+    /// Loads a model; a fixed-N export is optimized once, a dynamic one per point count.
+    pub fn load(path: &Path) -> Result<Self> {
+        let model = load_inference(path)?;
+        let fixed = model
+            .input_fact(0)
+            .map_err(|e| anyhow!("{e}"))?
+            .shape
+            .dims()
+            .nth(2)
+            .and_then(|d| d.concretize())
+            .and_then(|d| d.to_usize().ok());
+        let plan = match fixed {
+            Some(n) => Some(optimize(model, n)?),
+            None => None,
+        };
+        Ok(Self {
+            plan,
+            path: path.to_path_buf(),
+            fixed,
+        })
+    }
+
+    /// The export's fixed point count, if any.
+    pub fn fixed_points(&self) -> Option<usize> {
+        self.fixed
+    }
+
+    /// Runs a float model on `points` rows `[x, y, t_avg, p_acc, cnt]` as they are.
+    pub fn run(&mut self, points: &[[f32; 5]]) -> Result<Logits<f32>> {
+        match self.run_any(points)? {
+            TractOutput::F32(l) => Ok(l),
+            TractOutput::I32(_) => bail!("the model's outputs are int32 (a quantized graph)"),
+        }
+    }
+
+    /// Runs a quantized graph whose outputs are int32 accumulators.
+    pub fn run_i32(&mut self, points: &[[f32; 5]]) -> Result<Logits<i32>> {
+        match self.run_any(points)? {
+            TractOutput::I32(l) => Ok(l),
+            TractOutput::F32(_) => bail!("the model's outputs are float, not int32 accumulators"),
+        }
+    }
+
+    /// Runs the model; outputs keep their element type.
+    pub fn run_any(&mut self, points: &[[f32; 5]]) -> Result<TractOutput> {
+        let n = points.len();
+        if let Some(f) = self.fixed {
+            ensure!(n == f, "this model takes exactly {f} points, got {n}");
+        }
+        if self.plan.is_none() {
+            self.plan = Some(optimize(load_inference(&self.path)?, n)?);
+        }
+        let plan = self.plan.as_ref().context("no plan")?;
+        // (N, 5) → (1, 5, N)
+        let mut input = vec![0f32; 5 * n];
+        for (i, p) in points.iter().enumerate() {
+            for (c, v) in p.iter().enumerate() {
+                input[c * n + i] = *v;
+            }
+        }
+        let t = tract_ndarray::Array3::from_shape_vec((1, 5, n), input)?;
+        let out = plan
+            .run(tvec!(Tensor::from(t).into()))
+            .map_err(|e| anyhow!("tract: {e:?}"))?;
+        ensure!(out.len() == 2, "expected two outputs");
+        let joints = *out[0].shape().get(1).context("x output rank")?;
+        let logits = if out[0].datum_type() == i32::datum_type() {
+            TractOutput::I32(Logits {
+                joints,
+                x: values::<i32>(&out[0])?,
+                y: values::<i32>(&out[1])?,
+            })
+        } else {
+            TractOutput::F32(Logits {
+                joints,
+                x: values::<f32>(&out[0])?,
+                y: values::<f32>(&out[1])?,
+            })
+        };
+        if self.fixed.is_none() {
+            self.plan = None; // the next call may have another N
+        }
+        Ok(logits)
+    }
+}
+
+/// Outputs of [`TractModel::run_any`].
+#[derive(Clone, Debug, PartialEq)]
+pub enum TractOutput {
+    /// A float model's logits.
+    F32(Logits<f32>),
+    /// A quantized graph's int32 accumulators.
+    I32(Logits<i32>),
+}
+
+fn values<T: Datum + Copy>(t: &TValue) -> Result<Vec<T>> {
+    Ok(t.to_plain_array_view::<T>()
+        .map_err(|e| anyhow!("{e}"))?
+        .iter()
+        .copied()
+        .collect())
+}
+
+fn load_inference(path: &Path) -> Result<InferenceModel> {
+    tract_onnx::onnx()
+        .model_for_path(path)
+        .map_err(|e| anyhow!("{}: cannot load ONNX model: {e:?}", path.display()))
+}
+
+fn optimize(model: InferenceModel, n: usize) -> Result<std::sync::Arc<TypedSimplePlan>> {
+    model
+        .with_input_fact(0, f32::fact([1, 5, n]).into())
+        .and_then(|m| m.into_optimized())
+        .and_then(|m| m.into_runnable())
+        .map_err(|e| anyhow!("tract cannot prepare the model for {n} points: {e:?}"))
+}
