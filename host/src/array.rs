@@ -83,3 +83,112 @@ pub fn write<T: npyz::AutoSerialize + Copy>(path: &Path, shape: &[u64], data: &[
         .with_context(|| format!("writing {}", path.display()))?;
     Ok(())
 }
+
+/// A `.npy` file written row by row when the number of rows is not known in advance: the
+/// header reserves room for the leading dimension and [`NpyAppender::finish`] patches it in.
+/// (npyz writes a shape known up front; streaming a dataset of unknown size needs this.)
+pub struct NpyAppender<T> {
+    file: BufWriter<File>,
+    path: std::path::PathBuf,
+    /// The shape of one row (the array's shape after the leading dimension).
+    row: Vec<u64>,
+    rows: u64,
+    _t: std::marker::PhantomData<T>,
+}
+
+/// Element types [`NpyAppender`] writes: little-endian numbers with numpy's type string.
+pub trait NpyElement: Copy {
+    /// numpy's `descr`, e.g. `<f4`.
+    const DESCR: &'static str;
+    /// Little-endian bytes of `v`, appended to `out`.
+    fn put(v: Self, out: &mut Vec<u8>);
+}
+
+macro_rules! npy_element {
+    ($($t:ty => $d:literal),*) => {$(
+        impl NpyElement for $t {
+            const DESCR: &'static str = $d;
+            fn put(v: Self, out: &mut Vec<u8>) {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+    )*};
+}
+npy_element!(f32 => "<f4", f64 => "<f8", i64 => "<i8", i32 => "<i4", u32 => "<u4", u16 => "<u2", u8 => "|u1");
+
+/// Bytes of the fixed `.npy` header [`NpyAppender`] writes (format 1.0; a multiple of 64).
+const APPEND_HEADER: usize = 128;
+
+impl<T: NpyElement> NpyAppender<T> {
+    /// Creates `path` for rows of shape `row` (empty for a 1-D array).
+    pub fn create(path: &Path, row: &[u64]) -> Result<Self> {
+        let file =
+            File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
+        let mut w = Self {
+            file: BufWriter::new(file),
+            path: path.to_path_buf(),
+            row: row.to_vec(),
+            rows: 0,
+            _t: std::marker::PhantomData,
+        };
+        let header = w.header()?;
+        io::Write::write_all(&mut w.file, &header)?;
+        Ok(w)
+    }
+
+    fn header(&self) -> Result<Vec<u8>> {
+        let mut shape = format!("{}", self.rows);
+        for d in &self.row {
+            shape.push_str(&format!(", {d}"));
+        }
+        if self.row.is_empty() {
+            shape.push(',');
+        }
+        let dict = format!(
+            "{{'descr': '{}', 'fortran_order': False, 'shape': ({shape}), }}",
+            T::DESCR
+        );
+        let mut h = b"\x93NUMPY\x01\x00".to_vec();
+        let len = APPEND_HEADER - 10;
+        if dict.len() + 1 > len {
+            bail!("npy header too long for {}", self.path.display());
+        }
+        h.extend_from_slice(&(len as u16).to_le_bytes());
+        h.extend_from_slice(dict.as_bytes());
+        h.resize(APPEND_HEADER - 1, b' ');
+        h.push(b'\n');
+        Ok(h)
+    }
+
+    /// Appends rows (`values.len()` a multiple of the row size).
+    pub fn append(&mut self, values: &[T]) -> Result<()> {
+        let per_row: u64 = self.row.iter().product();
+        if per_row == 0 || !(values.len() as u64).is_multiple_of(per_row) {
+            bail!(
+                "{}: {} values are not whole rows",
+                self.path.display(),
+                values.len()
+            );
+        }
+        let mut bytes = Vec::with_capacity(std::mem::size_of_val(values));
+        for &v in values {
+            T::put(v, &mut bytes);
+        }
+        io::Write::write_all(&mut self.file, &bytes)
+            .with_context(|| format!("cannot write {}", self.path.display()))?;
+        self.rows += values.len() as u64 / per_row;
+        Ok(())
+    }
+
+    /// Patches the row count into the header and closes the file; returns the rows.
+    pub fn finish(mut self) -> Result<u64> {
+        use std::io::{Seek, SeekFrom, Write};
+        let header = self.header()?;
+        self.file.flush()?;
+        let mut f = self.file.into_inner().map_err(|e| e.into_error())?;
+        f.seek(SeekFrom::Start(0))?;
+        f.write_all(&header)
+            .with_context(|| format!("cannot write {}", self.path.display()))?;
+        Ok(self.rows)
+    }
+}

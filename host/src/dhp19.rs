@@ -67,6 +67,16 @@ pub fn bundled_camera(channel: u8) -> Result<Camera> {
     })
 }
 
+/// Writes the bundled calibration files into `dir` (created if needed), as DHP19 ships them.
+pub fn write_calibration(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    for (name, bytes) in BUNDLED {
+        let path = dir.join(name);
+        std::fs::write(&path, bytes).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
+}
+
 /// One array, read by name: `(where it came from, shape, values)`.
 type Array = (String, Vec<u64>, Vec<f64>);
 

@@ -6,9 +6,10 @@
 //!
 //! | stage | module |
 //! |---|---|
-//! | events in | [`io`] (every format, files or memory), [`summary`], [`convert`] |
+//! | events in | [`io`] (every format, files or memory), [`summary`], [`convert`], [`simulate`] (synthetic DHP19-style recordings) |
 //! | windows → estimates | [`pipeline`] (any reader through a core stage), [`pose`] (the JSON schema, once) |
 //! | 3-D | [`dhp19`] (calibration), [`triangulate`] (window pairing, 3-D joints) |
+//! | ground truth | [`dataset`] (labelled windows for training), [`eval`] (MPJPE 2-D and 3-D) |
 //! | models | [`model`] (blobs, quantization; ONNX and tract with feature `onnx`), [`inputs`], [`parity`] |
 //! | costs | [`budget`] (MACs, bytes, firmware images), [`bench`] |
 //! | files | [`array`] (`.npy`), [`assets`] (what the binary embeds) |
@@ -23,12 +24,15 @@ pub mod bench;
 pub mod budget;
 pub mod cli;
 pub mod convert;
+pub mod dataset;
 pub mod dhp19;
+pub mod eval;
 pub mod inputs;
 pub mod io;
 pub mod model;
 pub mod parity;
 pub mod pipeline;
 pub mod pose;
+pub mod simulate;
 pub mod summary;
 pub mod triangulate;

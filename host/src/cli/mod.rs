@@ -13,9 +13,11 @@ use crate::summary::summarize_with;
 use crate::{array, assets, bench, convert};
 
 pub mod budget;
+pub mod data;
 #[cfg(feature = "onnx")]
 pub mod model;
 pub mod pose;
+pub mod sim;
 pub mod triangulate;
 
 /// Human pose from event cameras: rasterization, inference and budgets for MCUs.
@@ -51,6 +53,12 @@ pub enum Command {
     Budget(budget::BudgetArgs),
     /// Triangulate two DHP19 cameras' 2-D joints (`pose --json` outputs) to 3-D joints in mm.
     Triangulate(triangulate::TriangulateArgs),
+    /// Labelled windows (points, 2-D/3-D labels, masks) from recordings with ground truth.
+    Dataset(data::DatasetArgs),
+    /// MPJPE 2-D (px) and 3-D (mm) of a model, or of the mean-pose baseline, on a dataset.
+    Eval(data::EvalArgs),
+    /// Simulate DHP19-style recordings (four cameras, ground truth, calibration) into a directory.
+    Sim(sim::SimArgs),
     /// Measure throughput.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -191,6 +199,9 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Parity(a) => model::parity(&a),
         Command::Budget(a) => budget::budget(&a),
         Command::Triangulate(a) => triangulate::triangulate(&a),
+        Command::Sim(a) => sim::sim(&a),
+        Command::Dataset(a) => data::dataset(&a),
+        Command::Eval(a) => data::eval(&a),
     }
 }
 

@@ -1,0 +1,243 @@
+//! `evpose dataset` and `evpose eval`: arguments, progress and tables; the work is in
+//! [`crate::dataset`] and [`crate::eval`].
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Result};
+use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::dataset::{self, Dataset, DatasetOptions, LabelRule, SplitFilter};
+use crate::eval::{self, EvalReport};
+use crate::{dhp19, model};
+
+/// Arguments of `evpose dataset` (stable: scripts call them).
+#[derive(Args, Debug)]
+pub struct DatasetArgs {
+    /// Directory of recordings with ground truth (an `evpose sim` output).
+    #[arg(long)]
+    pub recordings: PathBuf,
+    /// Output directory.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Window rule: `mean` (30,000 events over all cameras, mean label) or `last` (7,500 per
+    /// camera, label at the last event).
+    #[arg(long, value_enum, default_value_t = LabelRule::Mean)]
+    pub label: LabelRule,
+    /// Points per sample.
+    #[arg(long, default_value_t = evpose_core::pipeline::DEFAULT_POINTS)]
+    pub points: usize,
+    /// Camera channels (DHP19's front pair by default).
+    #[arg(long, value_delimiter = ',', default_values_t = dhp19::FRONT_CHANNELS)]
+    pub cameras: Vec<u8>,
+    /// Recordings of which subjects: `train` drops windows under 1,024 points, as the paper.
+    #[arg(long, value_enum, default_value_t = SplitFilter::All)]
+    pub split: SplitFilter,
+    /// Seed of the point sampler.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+fn bar(len: u64, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template(&format!(
+            "{{bar:40}} {{pos}}/{{len}} {what} {{elapsed}} (eta {{eta}})"
+        ))
+        .expect("valid template"),
+    );
+    bar
+}
+
+/// Runs `evpose dataset`.
+pub fn dataset(a: &DatasetArgs) -> Result<()> {
+    let opts = DatasetOptions {
+        label: a.label,
+        points: a.points,
+        cameras: a.cameras.clone(),
+        split: a.split,
+        seed: a.seed,
+    };
+    let start = Instant::now();
+    let bar = bar(0, "recordings");
+    let m = dataset::build(&a.recordings, &a.out, &opts, |done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    })?;
+    bar.finish_and_clear();
+    eprintln!(
+        "wrote {} samples ({} windows dropped under {} points) from {} recordings to {} in {:.1} s",
+        m.samples,
+        m.dropped_short,
+        dataset::MIN_TRAIN_POINTS,
+        m.recordings.len(),
+        a.out.display(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// Inference engines for `evpose eval`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum EvalEngine {
+    /// tract running the `.onnx` (any backbone of the family).
+    Tract,
+    /// The core's f32 engine (an `.onnx` imported, or an f32 blob).
+    F32,
+    /// The core's int8 engine on an `.evq` blob.
+    I8,
+}
+
+/// Arguments of `evpose eval` (stable: scripts call them).
+#[derive(Args, Debug)]
+pub struct EvalArgs {
+    /// The dataset (`evpose dataset --out`).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// The model: `.onnx` (tract, f32) or `.evq` (i8, f32).
+    #[arg(long, required_unless_present = "baseline")]
+    pub model: Option<PathBuf>,
+    /// Engine (default: i8 for an `.evq`, f32 otherwise).
+    #[arg(long, value_enum)]
+    pub engine: Option<EvalEngine>,
+    /// Instead of a model: predict the mean pose of this training dataset (a sanity check).
+    #[arg(long, conflicts_with = "model")]
+    pub baseline: Option<PathBuf>,
+    /// Write the report as JSON.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+}
+
+/// Runs `evpose eval`.
+pub fn eval(a: &EvalArgs) -> Result<()> {
+    let ds = Dataset::open(&a.data)?;
+    if ds.is_empty() {
+        bail!("{}: no samples", a.data.display());
+    }
+    let front = dhp19::FRONT_CHANNELS.map(|c| dhp19::bundled_camera(c).map(|cam| (c, cam)));
+    let [Ok(fa), Ok(fb)] = front else {
+        bail!("cannot load the DHP19 front cameras");
+    };
+    let start = Instant::now();
+    let bar = bar(ds.len() as u64, "samples");
+    let (predictions, predictor) = match (&a.baseline, &a.model) {
+        (Some(train), _) => (
+            eval::mean_pose(&Dataset::open(train)?, &ds)?,
+            format!("mean pose of {}", train.display()),
+        ),
+        (None, Some(path)) => {
+            let is_onnx = path.extension().is_some_and(|e| e == "onnx");
+            let engine = a.engine.unwrap_or(if is_onnx {
+                EvalEngine::F32
+            } else {
+                EvalEngine::I8
+            });
+            let progress = |n: usize| bar.set_position(n as u64);
+            let p = match engine {
+                EvalEngine::Tract => tract(&ds, path, progress)?,
+                EvalEngine::F32 | EvalEngine::I8 => {
+                    let blob = model::load_blob(path)?;
+                    let dtype = evpose_core::Model::parse(blob.bytes())
+                        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
+                        .dtype();
+                    let want = if engine == EvalEngine::I8 {
+                        evpose_core::DType::I8
+                    } else {
+                        evpose_core::DType::F32
+                    };
+                    if dtype != want {
+                        bail!(
+                            "{}: a {dtype:?} model, not for --engine {engine:?}",
+                            path.display()
+                        );
+                    }
+                    eval::predict_core(&ds, &blob, progress)?
+                }
+            };
+            (p, format!("{} ({engine:?})", path.display()))
+        }
+        (None, None) => bail!("give --model or --baseline"),
+    };
+    bar.finish_and_clear();
+    let secs = start.elapsed().as_secs_f64();
+    let rate = if a.baseline.is_some() {
+        0.0
+    } else {
+        ds.len() as f64 / secs
+    };
+    let report = eval::evaluate(
+        &ds,
+        &predictions,
+        [(fa.0, &fa.1), (fb.0, &fb.1)],
+        predictor,
+        rate,
+    )?;
+    if let Some(path) = &a.json {
+        std::fs::write(path, serde_json::to_string_pretty(&report)?)?;
+    }
+    print_report(&report);
+    Ok(())
+}
+
+#[cfg(feature = "onnx")]
+fn tract(
+    ds: &Dataset,
+    path: &std::path::Path,
+    progress: impl Fn(usize) + Sync,
+) -> Result<Vec<eval::Joints2d>> {
+    eval::predict_tract(ds, path, progress)
+}
+
+#[cfg(not(feature = "onnx"))]
+fn tract(
+    _: &Dataset,
+    _: &std::path::Path,
+    _: impl Fn(usize) + Sync,
+) -> Result<Vec<eval::Joints2d>> {
+    bail!("this evpose was built without tract (cargo feature `onnx`)")
+}
+
+fn fmt(v: Option<f64>) -> String {
+    v.map_or_else(|| "-".into(), |v| format!("{v:.2}"))
+}
+
+fn print_report(r: &EvalReport) {
+    println!("{}", r.predictor);
+    if r.synthetic {
+        println!("data: synthetic (evpose sim): these are not DHP19 figures");
+    }
+    println!(
+        "MPJPE2D {} px over {} samples; MPJPE3D {} mm over {} windows{}",
+        fmt(r.mpjpe2d_px),
+        r.samples,
+        fmt(r.mpjpe3d_mm),
+        r.windows,
+        if r.samples_per_second > 0.0 {
+            format!("; {:.1} samples/s", r.samples_per_second)
+        } else {
+            String::new()
+        }
+    );
+    for (c, m) in &r.per_camera {
+        println!("  camera {c}: {} px", fmt(m.mpjpe2d_px));
+    }
+    println!("  {:<16} {:>8} {:>9}", "movement", "2-D px", "3-D mm");
+    for (name, m) in &r.per_movement {
+        println!(
+            "  {:<16} {:>8} {:>9}",
+            name,
+            fmt(m.mpjpe2d_px),
+            fmt(m.mpjpe3d_mm)
+        );
+    }
+    println!("  {:<16} {:>8} {:>9}", "joint", "2-D px", "3-D mm");
+    for (name, m) in evpose_sim::JOINT_NAMES.iter().zip(&r.per_joint) {
+        println!(
+            "  {:<16} {:>8} {:>9}",
+            name,
+            fmt(m.mpjpe2d_px),
+            fmt(m.mpjpe3d_mm)
+        );
+    }
+}

@@ -1,0 +1,658 @@
+//! `evpose dataset`: labelled windows a trainer reads with numpy alone.
+//!
+//! Two window rules, as in the paper's code (`shared/docs/simulation-notes.md`):
+//!
+//! - **Mean Label**: a window closes when [`MEAN_WINDOW_EVENTS`] (30,000) events have arrived
+//!   over the four cameras together; each selected camera's share of them is rasterized and
+//!   sampled; the label is the mean of the 100 Hz ground-truth samples whose time lies in the
+//!   window's span `[t_first, t_last]` (the nearest sample when none does).
+//! - **Last Label**: each camera's own windows of [`LAST_WINDOW_EVENTS`] (7,500) events; the
+//!   label is the sample nearest the window's last event.
+//!
+//! The 3-D label is projected into each camera with DHP19's convention
+//! ([`evpose_core::geometry::Camera::project`]), truncated to integer pixels, and masked where
+//! the joint falls outside `(0, W] × (0, H]`. Rasterization and sampling are the core's
+//! (`Rasterizer`, `sample_window`: what the firmware runs), so training sees the deployed
+//! preprocessing. Windows with fewer than [`MIN_TRAIN_POINTS`] points are dropped from the
+//! training split only, as the paper does.
+//!
+//! Output, a directory (row `i` of every array is one window of one camera):
+//!
+//! | file | shape, dtype | |
+//! |---|---|---|
+//! | `points.npy` | (W, N, 5) f32 | `[x, y, t_avg, p_acc, cnt]` |
+//! | `label2d.npy` | (W, J, 2) f32 | integer pixels `(u, v)` |
+//! | `mask.npy` | (W, J) u8 | 1 = visible |
+//! | `gt3d.npy` | (W, J, 3) f32 | mm, DHP19's world frame |
+//! | `camera.npy` | (W,) u8 | aedat channel |
+//! | `subject.npy` | (W,) i64 | subject id |
+//! | `movement.npy` | (W,) u16 | index into the manifest's `movements` |
+//! | `recording.npy` | (W,) u32 | index into the manifest's `recordings` |
+//! | `window.npy` | (W,) u32 | the window's index in its recording (cameras of one window share it) |
+//! | `span_us.npy` | (W, 2) i64 | first and last event time of the window, µs |
+//! | `manifest.json` | | rule, N, cameras, split, counts, movements, recordings |
+//!
+//! Recordings are processed in parallel (rayon) and written in order; memory holds one
+//! recording per thread.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use evpose_core::geometry::Camera;
+use evpose_core::raster::DEFAULT_SLICES;
+use evpose_core::sample::{rng_from_seed, sample_window};
+use evpose_core::{Event, RasterConfig, Rasterizer, WindowRule};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::array::{self, NpyAppender};
+use crate::io::{self, Batch, Format, OpenOptions};
+use crate::pipeline::VecStorage;
+use crate::simulate::{self, Split};
+
+/// Joints per pose (DHP19).
+pub const JOINTS: usize = 13;
+/// Events over all cameras per Mean Label window.
+pub const MEAN_WINDOW_EVENTS: usize = 30_000;
+/// Events per camera per Last Label window.
+pub const LAST_WINDOW_EVENTS: usize = 7_500;
+/// Training windows with fewer points are dropped.
+pub const MIN_TRAIN_POINTS: usize = 1_024;
+/// Ground-truth period, µs (Vicon, 100 Hz).
+pub const GT_PERIOD_US: f64 = 10_000.0;
+
+/// The window rule and its label.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum LabelRule {
+    /// 30,000 events over all cameras; mean of the samples in the window.
+    Mean,
+    /// 7,500 events per camera; the sample nearest the last event.
+    Last,
+}
+
+/// Which recordings to take.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum SplitFilter {
+    /// Training subjects only (short windows dropped).
+    Train,
+    /// Test subjects only.
+    Test,
+    /// Everything (nothing dropped).
+    All,
+}
+
+/// How a dataset is built.
+#[derive(Clone, Debug)]
+pub struct DatasetOptions {
+    /// Window rule.
+    pub label: LabelRule,
+    /// Points per sample `N`.
+    pub points: usize,
+    /// Camera channels to write (DHP19 trains and evaluates on the front pair, 2 and 3).
+    pub cameras: Vec<u8>,
+    /// Which recordings.
+    pub split: SplitFilter,
+    /// Seed of the point sampler (per recording: this seed and the recording's index).
+    pub seed: u64,
+}
+
+/// A recording with ground truth, wherever it came from.
+#[derive(Clone, Debug)]
+pub struct Source {
+    /// Event file.
+    pub events: PathBuf,
+    /// Ground truth, mm, one pose per 10 ms from `gt_t0_us` (empty: no person).
+    pub gt: Vec<[[f32; 3]; JOINTS]>,
+    /// Time of the first ground-truth sample on the events' clock, µs.
+    pub gt_t0_us: i64,
+    /// Subject id.
+    pub subject: i64,
+    /// Movement name.
+    pub movement: String,
+    /// Its split.
+    pub split: Split,
+}
+
+/// One labelled window of one camera.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Sample {
+    /// Network input, `N` rows.
+    pub points: Vec<[f32; 5]>,
+    /// Points in the rasterized window (before sampling).
+    pub cloud_points: usize,
+    /// Integer pixel labels `(u, v)`.
+    pub label2d: [[f32; 2]; JOINTS],
+    /// 1 where the joint is visible.
+    pub mask: [u8; JOINTS],
+    /// 3-D label, mm.
+    pub gt3d: [[f32; 3]; JOINTS],
+    /// Camera channel.
+    pub camera: u8,
+    /// Window index in the recording.
+    pub window: u32,
+    /// First and last event time, µs.
+    pub span_us: [i64; 2],
+}
+
+/// The manifest of a dataset (`manifest.json`).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct DatasetManifest {
+    /// `"evpose dataset"`.
+    pub generator: String,
+    /// Window rule.
+    pub label: LabelRule,
+    /// Points per sample.
+    pub points: usize,
+    /// Camera channels.
+    pub cameras: Vec<u8>,
+    /// Recordings taken.
+    pub split: SplitFilter,
+    /// Samples written (rows).
+    pub samples: u64,
+    /// Training windows dropped for having fewer than 1,024 points.
+    pub dropped_short: u64,
+    /// Movement names, by the index `movement.npy` holds.
+    pub movements: Vec<String>,
+    /// Event files, by the index `recording.npy` holds.
+    pub recordings: Vec<String>,
+    /// Whether the data is synthetic (`evpose sim`), not DHP19.
+    pub synthetic: bool,
+}
+
+/// The recordings of a directory: an `evpose sim` set (its manifest).
+pub fn sources(dir: &Path) -> Result<Vec<Source>> {
+    let m = simulate::read_manifest(dir).with_context(|| {
+        format!(
+            "{}: no evpose sim manifest (real DHP19 folders: see the README's dataset section)",
+            dir.display()
+        )
+    })?;
+    m.recordings
+        .iter()
+        .map(|r| {
+            Ok(Source {
+                events: dir.join(&r.file),
+                gt: match &r.gt {
+                    Some(g) => simulate::read_gt(&dir.join(g))?,
+                    None => Vec::new(),
+                },
+                gt_t0_us: 0,
+                subject: r.subject as i64,
+                movement: r.movement.clone(),
+                split: m.split,
+            })
+        })
+        .collect()
+}
+
+/// All events of a multi-camera recording, `(camera, event)` in file order.
+pub fn read_events(path: &Path) -> Result<Vec<(u8, Event)>> {
+    let opts = OpenOptions {
+        format: Some(Format::Aedat2Dhp19),
+        ..OpenOptions::default()
+    };
+    let mut reader = io::open_with(path, &opts)?;
+    let mut batch = Batch::default();
+    let mut out = Vec::new();
+    while reader
+        .read_batch(&mut batch)
+        .with_context(|| path.display().to_string())?
+    {
+        out.extend(
+            batch
+                .cameras
+                .iter()
+                .copied()
+                .zip(batch.events.iter().copied()),
+        );
+    }
+    Ok(out)
+}
+
+/// Mean of the ground-truth samples whose time lies in `[t0, t1]` µs (the nearest sample when
+/// none does); `None` without ground truth.
+pub fn mean_label(
+    gt: &[[[f32; 3]; JOINTS]],
+    gt_t0_us: i64,
+    (t0, t1): (i64, i64),
+) -> Option<[[f32; 3]; JOINTS]> {
+    if gt.is_empty() {
+        return None;
+    }
+    let k = |t: i64| (t - gt_t0_us) as f64 / GT_PERIOD_US;
+    let first = k(t0).ceil().max(0.0) as usize;
+    let last = (k(t1).floor().max(-1.0) + 1.0) as usize; // exclusive
+    let range = first..last.min(gt.len());
+    if range.is_empty() {
+        return Some(gt[nearest_sample(gt.len(), gt_t0_us, (t0 + t1) / 2)]);
+    }
+    let n = range.len() as f64;
+    let mut sum = [[0f64; 3]; JOINTS];
+    for pose in &gt[range] {
+        for (s, p) in sum.iter_mut().zip(pose) {
+            for a in 0..3 {
+                s[a] += f64::from(p[a]);
+            }
+        }
+    }
+    Some(std::array::from_fn(|j| {
+        std::array::from_fn(|a| (sum[j][a] / n) as f32)
+    }))
+}
+
+/// Index of the ground-truth sample nearest `t` µs (clamped to the recording).
+pub fn nearest_sample(len: usize, gt_t0_us: i64, t: i64) -> usize {
+    let k = ((t - gt_t0_us) as f64 / GT_PERIOD_US).round();
+    k.clamp(0.0, len.saturating_sub(1) as f64) as usize
+}
+
+/// Projects a 3-D label into a camera: integer pixels (truncated, as DHP19's labels) and the
+/// visibility mask (`(0, W] × (0, H]`).
+pub fn project_label(
+    camera: &Camera,
+    pose: &[[f32; 3]; JOINTS],
+) -> ([[f32; 2]; JOINTS], [u8; JOINTS]) {
+    let mut label = [[0f32; 2]; JOINTS];
+    let mut mask = [0u8; JOINTS];
+    for (j, p) in pose.iter().enumerate() {
+        let x = [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])];
+        if let Some((u, v)) = camera.project(x) {
+            if camera.is_visible((u, v)) {
+                label[j] = [u.trunc() as f32, v.trunc() as f32];
+                mask[j] = 1;
+            }
+        }
+    }
+    (label, mask)
+}
+
+/// Rasterizes one camera's events of a window as one window (the core's rasterizer) and
+/// samples `n` points.
+fn cloud(
+    events: &[Event],
+    n: usize,
+    rng: &mut evpose_core::sample::SampleRng,
+) -> Result<(Vec<[f32; 5]>, usize)> {
+    let capacity = events.len().max(1);
+    let config = RasterConfig {
+        window: WindowRule::Events(capacity as u32),
+        slices: DEFAULT_SLICES,
+        ..RasterConfig::DAVIS346
+    };
+    let mut r = Rasterizer::new(config, VecStorage::new(capacity, &config))?;
+    let closed = r.extend(events).1.is_some();
+    let window = if closed {
+        r.last_window().unwrap_or_default()
+    } else {
+        r.flush()
+    };
+    let mut idx = vec![0u32; n.max(window.len())];
+    let mut rows = vec![[0f32; 5]; n.max(1)];
+    let picked = sample_window(&window, n, rng, &mut idx, &mut rows)?;
+    Ok((picked.to_vec(), window.len()))
+}
+
+/// The labelled windows of one recording (`index` seeds its sampler).
+pub fn windows(
+    source: &Source,
+    events: &[(u8, Event)],
+    cameras: &[(u8, Camera)],
+    opts: &DatasetOptions,
+    index: usize,
+) -> Result<Vec<Sample>> {
+    let mut rng = rng_from_seed(opts.seed ^ (index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let mut out = Vec::new();
+    let mut push = |window: u32,
+                    (t0, t1): (i64, i64),
+                    camera: u8,
+                    cam: &Camera,
+                    evs: &[Event],
+                    label: [[f32; 3]; JOINTS],
+                    rng: &mut evpose_core::sample::SampleRng|
+     -> Result<()> {
+        let (points, cloud_points) = cloud(evs, opts.points, rng)?;
+        let (label2d, mask) = project_label(cam, &label);
+        out.push(Sample {
+            points,
+            cloud_points,
+            label2d,
+            mask,
+            gt3d: label,
+            camera,
+            window,
+            span_us: [t0, t1],
+        });
+        Ok(())
+    };
+    match opts.label {
+        LabelRule::Mean => {
+            for (w, chunk) in events.chunks(MEAN_WINDOW_EVENTS).enumerate() {
+                if chunk.len() < MEAN_WINDOW_EVENTS {
+                    break; // a short tail is not a window
+                }
+                let span = (chunk[0].1.t, chunk[chunk.len() - 1].1.t);
+                let Some(label) = mean_label(&source.gt, source.gt_t0_us, span) else {
+                    continue;
+                };
+                for (c, cam) in cameras {
+                    let evs: Vec<Event> = chunk
+                        .iter()
+                        .filter(|(k, _)| k == c)
+                        .map(|&(_, e)| e)
+                        .collect();
+                    push(w as u32, span, *c, cam, &evs, label, &mut rng)?;
+                }
+            }
+        }
+        LabelRule::Last => {
+            for (c, cam) in cameras {
+                let mine: Vec<Event> = events
+                    .iter()
+                    .filter(|(k, _)| k == c)
+                    .map(|&(_, e)| e)
+                    .collect();
+                for (w, chunk) in mine.chunks(LAST_WINDOW_EVENTS).enumerate() {
+                    if chunk.len() < LAST_WINDOW_EVENTS || source.gt.is_empty() {
+                        break;
+                    }
+                    let span = (chunk[0].t, chunk[chunk.len() - 1].t);
+                    let k = nearest_sample(source.gt.len(), source.gt_t0_us, span.1);
+                    push(w as u32, span, *c, cam, chunk, source.gt[k], &mut rng)?;
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The arrays of a dataset directory, open for appending.
+struct Writers {
+    points: NpyAppender<f32>,
+    label2d: NpyAppender<f32>,
+    mask: NpyAppender<u8>,
+    gt3d: NpyAppender<f32>,
+    camera: NpyAppender<u8>,
+    subject: NpyAppender<i64>,
+    movement: NpyAppender<u16>,
+    recording: NpyAppender<u32>,
+    window: NpyAppender<u32>,
+    span: NpyAppender<i64>,
+}
+
+impl Writers {
+    fn create(out: &Path, n: usize) -> Result<Self> {
+        let j = JOINTS as u64;
+        Ok(Self {
+            points: NpyAppender::create(&out.join("points.npy"), &[n as u64, 5])?,
+            label2d: NpyAppender::create(&out.join("label2d.npy"), &[j, 2])?,
+            mask: NpyAppender::create(&out.join("mask.npy"), &[j])?,
+            gt3d: NpyAppender::create(&out.join("gt3d.npy"), &[j, 3])?,
+            camera: NpyAppender::create(&out.join("camera.npy"), &[])?,
+            subject: NpyAppender::create(&out.join("subject.npy"), &[])?,
+            movement: NpyAppender::create(&out.join("movement.npy"), &[])?,
+            recording: NpyAppender::create(&out.join("recording.npy"), &[])?,
+            window: NpyAppender::create(&out.join("window.npy"), &[])?,
+            span: NpyAppender::create(&out.join("span_us.npy"), &[2])?,
+        })
+    }
+
+    fn append(&mut self, s: &Sample, subject: i64, movement: u16, recording: u32) -> Result<()> {
+        self.points.append(s.points.as_flattened())?;
+        self.label2d.append(s.label2d.as_flattened())?;
+        self.mask.append(&s.mask)?;
+        self.gt3d.append(s.gt3d.as_flattened())?;
+        self.camera.append(&[s.camera])?;
+        self.subject.append(&[subject])?;
+        self.movement.append(&[movement])?;
+        self.recording.append(&[recording])?;
+        self.window.append(&[s.window])?;
+        self.span.append(&s.span_us)
+    }
+
+    fn finish(self) -> Result<u64> {
+        let n = self.points.finish()?;
+        for rows in [
+            self.label2d.finish()?,
+            self.mask.finish()?,
+            self.gt3d.finish()?,
+            self.camera.finish()?,
+            self.subject.finish()?,
+            self.movement.finish()?,
+            self.recording.finish()?,
+            self.window.finish()?,
+            self.span.finish()?,
+        ] {
+            if rows != n {
+                bail!("dataset arrays disagree on their row count");
+            }
+        }
+        Ok(n)
+    }
+}
+
+/// Builds a dataset from the recordings in `dir` into `out`, calling `progress(done, total)`
+/// per recording.
+pub fn build(
+    dir: &Path,
+    out: &Path,
+    opts: &DatasetOptions,
+    progress: impl Fn(usize, usize) + Sync,
+) -> Result<DatasetManifest> {
+    if opts.points == 0 {
+        bail!("--points must be at least 1");
+    }
+    let all = sources(dir)?;
+    let sources: Vec<&Source> = all
+        .iter()
+        .filter(|s| match opts.split {
+            SplitFilter::All => true,
+            SplitFilter::Train => s.split == Split::Train,
+            SplitFilter::Test => s.split == Split::Test,
+        })
+        .collect();
+    let calibration = dir.join(
+        simulate::read_manifest(dir)
+            .map(|m| m.calibration)
+            .unwrap_or_else(|_| "calibration".into()),
+    );
+    let cameras: Vec<(u8, Camera)> = opts
+        .cameras
+        .iter()
+        .map(|&c| Ok((c, crate::dhp19::camera(&calibration, c)?)))
+        .collect::<Result<_>>()?;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let mut movements: Vec<String> = Vec::new();
+    for s in &sources {
+        if !movements.contains(&s.movement) {
+            movements.push(s.movement.clone());
+        }
+    }
+    let mut writers = Writers::create(out, opts.points)?;
+    let mut dropped = 0u64;
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    // Parallel over recordings, written in order, a few recordings at a time.
+    let chunk = 2 * rayon::current_num_threads().max(1);
+    for (c, group) in sources.chunks(chunk).enumerate() {
+        let results: Vec<Result<Vec<Sample>>> = group
+            .par_iter()
+            .enumerate()
+            .map(|(i, s)| {
+                let events = read_events(&s.events)?;
+                let r = windows(s, &events, &cameras, opts, c * chunk + i);
+                progress(
+                    done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
+                    sources.len(),
+                );
+                r.with_context(|| s.events.display().to_string())
+            })
+            .collect();
+        for (i, (s, samples)) in group.iter().zip(results).enumerate() {
+            let movement = movements.iter().position(|m| *m == s.movement).unwrap_or(0) as u16;
+            for sample in samples? {
+                if opts.split == SplitFilter::Train && sample.cloud_points < MIN_TRAIN_POINTS {
+                    dropped += 1;
+                    continue;
+                }
+                writers.append(&sample, s.subject, movement, (c * chunk + i) as u32)?;
+            }
+        }
+    }
+    let samples = writers.finish()?;
+    let manifest = DatasetManifest {
+        generator: "evpose dataset".into(),
+        label: opts.label,
+        points: opts.points,
+        cameras: opts.cameras.clone(),
+        split: opts.split,
+        samples,
+        dropped_short: dropped,
+        movements,
+        recordings: sources
+            .iter()
+            .map(|s| s.events.display().to_string())
+            .collect(),
+        synthetic: true,
+    };
+    let path = out.join("manifest.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&manifest)?)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(manifest)
+}
+
+/// A dataset read back (everything but the points, which [`Dataset::points`] reads).
+#[derive(Clone, Debug)]
+pub struct Dataset {
+    /// Its directory.
+    pub dir: PathBuf,
+    /// The manifest.
+    pub manifest: DatasetManifest,
+    /// Labels, `(u, v)` integer pixels per joint.
+    pub label2d: Vec<[[f32; 2]; JOINTS]>,
+    /// Visibility.
+    pub mask: Vec<[u8; JOINTS]>,
+    /// 3-D labels, mm.
+    pub gt3d: Vec<[[f32; 3]; JOINTS]>,
+    /// Camera channel per row.
+    pub camera: Vec<u8>,
+    /// Movement index per row.
+    pub movement: Vec<u16>,
+    /// Recording index per row.
+    pub recording: Vec<u32>,
+    /// Window index per row.
+    pub window: Vec<u32>,
+}
+
+impl Dataset {
+    /// Opens a dataset directory.
+    pub fn open(dir: &Path) -> Result<Self> {
+        let path = dir.join("manifest.json");
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("cannot read {}", path.display()))?;
+        let manifest: DatasetManifest = serde_json::from_str(&text)
+            .with_context(|| format!("{}: not an evpose dataset manifest", path.display()))?;
+        let read = |name: &str| array::read_f64(&dir.join(name)).map(|(_, v)| v);
+        let rows = |v: Vec<f64>, k: usize| -> Vec<Vec<f64>> {
+            v.chunks_exact(k).map(<[f64]>::to_vec).collect()
+        };
+        let l2 = rows(read("label2d.npy")?, 2 * JOINTS);
+        let g3 = rows(read("gt3d.npy")?, 3 * JOINTS);
+        let mk = rows(read("mask.npy")?, JOINTS);
+        let ds = Self {
+            dir: dir.to_path_buf(),
+            label2d: l2
+                .iter()
+                .map(|r| std::array::from_fn(|j| [r[2 * j] as f32, r[2 * j + 1] as f32]))
+                .collect(),
+            mask: mk
+                .iter()
+                .map(|r| std::array::from_fn(|j| r[j] as u8))
+                .collect(),
+            gt3d: g3
+                .iter()
+                .map(|r| std::array::from_fn(|j| std::array::from_fn(|a| r[3 * j + a] as f32)))
+                .collect(),
+            camera: read("camera.npy")?.into_iter().map(|v| v as u8).collect(),
+            movement: read("movement.npy")?
+                .into_iter()
+                .map(|v| v as u16)
+                .collect(),
+            recording: read("recording.npy")?
+                .into_iter()
+                .map(|v| v as u32)
+                .collect(),
+            window: read("window.npy")?.into_iter().map(|v| v as u32).collect(),
+            manifest,
+        };
+        let n = ds.manifest.samples as usize;
+        if [
+            ds.label2d.len(),
+            ds.mask.len(),
+            ds.gt3d.len(),
+            ds.camera.len(),
+            ds.movement.len(),
+            ds.recording.len(),
+            ds.window.len(),
+        ]
+        .iter()
+        .any(|&l| l != n)
+        {
+            bail!(
+                "{}: arrays and manifest disagree on the sample count",
+                dir.display()
+            );
+        }
+        Ok(ds)
+    }
+
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.camera.len()
+    }
+
+    /// Whether the dataset has no sample.
+    pub fn is_empty(&self) -> bool {
+        self.camera.is_empty()
+    }
+
+    /// The network inputs of samples `start..start + count` (`N` rows each), read from
+    /// `points.npy` without loading the rest.
+    pub fn points_range(&self, start: usize, count: usize) -> Result<Vec<Vec<[f32; 5]>>> {
+        use std::io::{Read, Seek, SeekFrom};
+        let path = self.dir.join("points.npy");
+        let mut f = std::fs::File::open(&path)
+            .with_context(|| format!("cannot open {}", path.display()))?;
+        let mut head = [0u8; 12];
+        f.read_exact(&mut head)
+            .with_context(|| format!("{}: truncated header", path.display()))?;
+        if &head[..6] != b"\x93NUMPY" {
+            bail!("{}: not an .npy file", path.display());
+        }
+        let data = match head[6] {
+            1 => 10 + u64::from(u16::from_le_bytes([head[8], head[9]])),
+            _ => 12 + u64::from(u32::from_le_bytes([head[8], head[9], head[10], head[11]])),
+        };
+        let n = self.manifest.points;
+        if start + count > self.len() {
+            bail!("samples {start}..{} of {}", start + count, self.len());
+        }
+        let row = (n * 5 * 4) as u64;
+        f.seek(SeekFrom::Start(data + start as u64 * row))?;
+        let mut bytes = vec![0u8; count * row as usize];
+        f.read_exact(&mut bytes)
+            .with_context(|| format!("{}: truncated", path.display()))?;
+        Ok(bytes
+            .chunks_exact(row as usize)
+            .map(|r| {
+                r.chunks_exact(20)
+                    .map(|p| {
+                        std::array::from_fn(|k| {
+                            f32::from_le_bytes(p[4 * k..4 * k + 4].try_into().unwrap_or_default())
+                        })
+                    })
+                    .collect()
+            })
+            .collect())
+    }
+}

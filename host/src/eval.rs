@@ -1,0 +1,316 @@
+//! `evpose eval`: MPJPE of a model (or of the mean-pose baseline) on an `evpose dataset`.
+//!
+//! - **MPJPE2D** (pixels): per sample, the decoded joints (integer argmax of each SimDR axis)
+//!   against the integer labels, Euclidean distance, averaged over the visible joints of all
+//!   samples (masked joints excluded), as the paper's code computes it.
+//! - **MPJPE3D** (mm): the predictions of the two front cameras (channels 2 and 3) for the same
+//!   window are triangulated with DHP19's calibration ([`evpose_core::geometry`]) and compared
+//!   with the window's 3-D label, averaged over the joints of all such windows.
+//!
+//! Both also per camera, per movement and per joint. Synthetic-data figures are not DHP19
+//! figures; the report says which data it measured.
+
+use std::collections::BTreeMap;
+
+use anyhow::{bail, Result};
+use evpose_core::geometry::{triangulate, Camera};
+use serde::Serialize;
+
+use crate::dataset::{Dataset, JOINTS};
+
+/// Predicted joints of one sample, pixels `(x, y)`.
+pub type Joints2d = [[f32; 2]; JOINTS];
+
+/// Errors of one group (a camera, a movement, a joint, or everything).
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct Mpjpe {
+    /// MPJPE2D, pixels (`None` without a visible joint).
+    pub mpjpe2d_px: Option<f64>,
+    /// MPJPE3D, mm (`None` without a triangulated window).
+    pub mpjpe3d_mm: Option<f64>,
+    /// Joint errors summed into the 2-D figure.
+    pub joints2d: u64,
+    /// Joint errors summed into the 3-D figure.
+    pub joints3d: u64,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct Acc {
+    sum2: f64,
+    n2: u64,
+    sum3: f64,
+    n3: u64,
+}
+
+impl Acc {
+    fn mpjpe(&self) -> Mpjpe {
+        Mpjpe {
+            mpjpe2d_px: (self.n2 > 0).then(|| self.sum2 / self.n2 as f64),
+            mpjpe3d_mm: (self.n3 > 0).then(|| self.sum3 / self.n3 as f64),
+            joints2d: self.n2,
+            joints3d: self.n3,
+        }
+    }
+}
+
+/// What `evpose eval` reports.
+#[derive(Clone, Debug, Serialize)]
+pub struct EvalReport {
+    /// What was evaluated (model path and engine, or the baseline).
+    pub predictor: String,
+    /// Whether the data is synthetic (then these are not DHP19 figures).
+    pub synthetic: bool,
+    /// MPJPE2D over everything, pixels.
+    pub mpjpe2d_px: Option<f64>,
+    /// MPJPE3D over everything, mm.
+    pub mpjpe3d_mm: Option<f64>,
+    /// Samples (windows × cameras) evaluated.
+    pub samples: usize,
+    /// Windows triangulated for the 3-D figure.
+    pub windows: usize,
+    /// Per camera channel.
+    pub per_camera: BTreeMap<u8, Mpjpe>,
+    /// Per movement name.
+    pub per_movement: BTreeMap<String, Mpjpe>,
+    /// Per joint (DHP19 order).
+    pub per_joint: Vec<Mpjpe>,
+    /// Samples per second of the prediction (0 for the baseline).
+    pub samples_per_second: f64,
+}
+
+/// Euclidean 2-D error of each visible joint.
+pub fn joint_errors_2d(
+    pred: &Joints2d,
+    label: &Joints2d,
+    mask: &[u8; JOINTS],
+) -> [Option<f64>; JOINTS] {
+    std::array::from_fn(|j| {
+        (mask[j] != 0).then(|| {
+            let (dx, dy) = (
+                f64::from(pred[j][0] - label[j][0]),
+                f64::from(pred[j][1] - label[j][1]),
+            );
+            (dx * dx + dy * dy).sqrt()
+        })
+    })
+}
+
+/// Computes the report from one prediction per dataset sample. `cameras` maps the two
+/// channels of the 3-D figure (DHP19: 2 and 3) to their calibration.
+pub fn evaluate(
+    ds: &Dataset,
+    predictions: &[Joints2d],
+    front: [(u8, &Camera); 2],
+    predictor: String,
+    samples_per_second: f64,
+) -> Result<EvalReport> {
+    if predictions.len() != ds.len() {
+        bail!("{} predictions for {} samples", predictions.len(), ds.len());
+    }
+    let mut all = Acc::default();
+    let mut per_camera: BTreeMap<u8, Acc> = BTreeMap::new();
+    let mut per_movement: BTreeMap<u16, Acc> = BTreeMap::new();
+    let mut per_joint = [Acc::default(); JOINTS];
+    // Pairs of front-camera samples of one window: (recording, window) → rows.
+    let mut pairs: BTreeMap<(u32, u32), [Option<usize>; 2]> = BTreeMap::new();
+    for (i, pred) in predictions.iter().enumerate() {
+        let errs = joint_errors_2d(pred, &ds.label2d[i], &ds.mask[i]);
+        for (j, e) in errs.iter().enumerate() {
+            if let Some(e) = *e {
+                for acc in [
+                    &mut all,
+                    per_camera.entry(ds.camera[i]).or_default(),
+                    per_movement.entry(ds.movement[i]).or_default(),
+                    &mut per_joint[j],
+                ] {
+                    acc.sum2 += e;
+                    acc.n2 += 1;
+                }
+            }
+        }
+        if let Some(side) = front.iter().position(|(c, _)| *c == ds.camera[i]) {
+            pairs.entry((ds.recording[i], ds.window[i])).or_default()[side] = Some(i);
+        }
+    }
+    let mut windows = 0;
+    for rows in pairs.values() {
+        let [Some(a), Some(b)] = *rows else { continue };
+        windows += 1;
+        for j in 0..JOINTS {
+            let pa = (
+                f64::from(predictions[a][j][0]),
+                f64::from(predictions[a][j][1]),
+            );
+            let pb = (
+                f64::from(predictions[b][j][0]),
+                f64::from(predictions[b][j][1]),
+            );
+            let Ok(x) = triangulate(front[0].1, pa, front[1].1, pb) else {
+                continue;
+            };
+            let g = ds.gt3d[a][j];
+            let e = (0..3)
+                .map(|k| (x[k] - f64::from(g[k])).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            for acc in [
+                &mut all,
+                per_movement.entry(ds.movement[a]).or_default(),
+                &mut per_joint[j],
+            ] {
+                acc.sum3 += e;
+                acc.n3 += 1;
+            }
+        }
+    }
+    let total = all.mpjpe();
+    Ok(EvalReport {
+        predictor,
+        synthetic: ds.manifest.synthetic,
+        mpjpe2d_px: total.mpjpe2d_px,
+        mpjpe3d_mm: total.mpjpe3d_mm,
+        samples: ds.len(),
+        windows,
+        per_camera: per_camera
+            .into_iter()
+            .map(|(c, a)| (c, a.mpjpe()))
+            .collect(),
+        per_movement: per_movement
+            .into_iter()
+            .map(|(m, a)| {
+                let name = ds
+                    .manifest
+                    .movements
+                    .get(usize::from(m))
+                    .cloned()
+                    .unwrap_or_else(|| m.to_string());
+                (name, a.mpjpe())
+            })
+            .collect(),
+        per_joint: per_joint.iter().map(Acc::mpjpe).collect(),
+        samples_per_second,
+    })
+}
+
+/// The mean-pose baseline: every sample of camera `c` is predicted as the mean visible 2-D
+/// label of camera `c` in `train` (per joint). A model that does not beat it has learnt
+/// nothing about the pose.
+pub fn mean_pose(train: &Dataset, test: &Dataset) -> Result<Vec<Joints2d>> {
+    let mut sums: BTreeMap<u8, [[f64; 3]; JOINTS]> = BTreeMap::new();
+    for i in 0..train.len() {
+        let s = sums.entry(train.camera[i]).or_insert([[0.0; 3]; JOINTS]);
+        for (j, s) in s.iter_mut().enumerate() {
+            if train.mask[i][j] != 0 {
+                s[0] += f64::from(train.label2d[i][j][0]);
+                s[1] += f64::from(train.label2d[i][j][1]);
+                s[2] += 1.0;
+            }
+        }
+    }
+    (0..test.len())
+        .map(|i| {
+            let Some(s) = sums.get(&test.camera[i]) else {
+                bail!(
+                    "the training set has no sample of camera {}",
+                    test.camera[i]
+                );
+            };
+            // The integer pixel of the mean, as a decoded joint is an integer pixel.
+            Ok(std::array::from_fn(|j| {
+                let n = s[j][2].max(1.0);
+                [(s[j][0] / n).round() as f32, (s[j][1] / n).round() as f32]
+            }))
+        })
+        .collect()
+}
+
+/// Samples read and predicted per batch (bounds memory: a batch of 2,048-point samples is
+/// 40 MiB).
+const BATCH: usize = 1024;
+
+/// Decoded joints of each sample with the core's engine on `blob` (int8 or f32), in parallel
+/// (rayon, one runner per thread); `progress(done)` after each batch.
+pub fn predict_core(
+    ds: &Dataset,
+    blob: &crate::model::AlignedBlob,
+    progress: impl Fn(usize) + Sync,
+) -> Result<Vec<Joints2d>> {
+    use rayon::prelude::*;
+    let runner = crate::model::CoreRunner::new(blob)?;
+    let (w, h, j) = (
+        runner.model().width(),
+        runner.model().height(),
+        runner.model().joints(),
+    );
+    if j != JOINTS {
+        bail!("the model has {j} joints; the dataset has {JOINTS}");
+    }
+    let int8 = runner.model().dtype() == evpose_core::DType::I8;
+    predict_batches(ds, progress, |batch| {
+        batch
+            .par_iter()
+            .map_init(
+                || crate::model::CoreRunner::new(blob),
+                |runner, points| {
+                    let runner = runner.as_mut().map_err(|e| anyhow::anyhow!("{e:#}"))?;
+                    let mut joints = [evpose_core::Joint2d::default(); JOINTS];
+                    if int8 {
+                        let l = runner.run_i8(points)?;
+                        evpose_core::decode(&l.x, &l.y, w, h, &mut joints)?;
+                    } else {
+                        let l = runner.run_f32(points)?;
+                        evpose_core::decode(&l.x, &l.y, w, h, &mut joints)?;
+                    }
+                    Ok(joints.map(|p| [f32::from(p.x), f32::from(p.y)]))
+                },
+            )
+            .collect()
+    })
+}
+
+/// Decoded joints of each sample with tract running an ONNX file (any backbone of the family),
+/// in parallel (one tract plan per thread). Feature `onnx`.
+#[cfg(feature = "onnx")]
+pub fn predict_tract(
+    ds: &Dataset,
+    onnx: &std::path::Path,
+    progress: impl Fn(usize) + Sync,
+) -> Result<Vec<Joints2d>> {
+    use rayon::prelude::*;
+    predict_batches(ds, progress, |batch| {
+        batch
+            .par_iter()
+            .map_init(
+                || crate::model::TractModel::load(onnx),
+                |model, points| {
+                    let model = model.as_mut().map_err(|e| anyhow::anyhow!("{e:#}"))?;
+                    let l = model.run(points)?;
+                    let (w, h) = (l.width(), l.height());
+                    if l.joints != JOINTS {
+                        bail!(
+                            "the model has {} joints; the dataset has {JOINTS}",
+                            l.joints
+                        );
+                    }
+                    let mut joints = [evpose_core::Joint2d::default(); JOINTS];
+                    evpose_core::decode(&l.x, &l.y, w, h, &mut joints)?;
+                    Ok(joints.map(|p| [f32::from(p.x), f32::from(p.y)]))
+                },
+            )
+            .collect()
+    })
+}
+
+fn predict_batches(
+    ds: &Dataset,
+    progress: impl Fn(usize) + Sync,
+    mut run: impl FnMut(&[Vec<[f32; 5]>]) -> Result<Vec<Joints2d>>,
+) -> Result<Vec<Joints2d>> {
+    let mut out = Vec::with_capacity(ds.len());
+    for start in (0..ds.len()).step_by(BATCH) {
+        let batch = ds.points_range(start, BATCH.min(ds.len() - start))?;
+        out.extend(run(&batch)?);
+        progress(out.len());
+    }
+    Ok(out)
+}

@@ -1,0 +1,311 @@
+//! Ground truth end to end: `evpose sim` files read back by the readers, the Mean/Last Label
+//! arithmetic on a hand-built recording, and MPJPE on hand-computed cases.
+
+use evpose_core::Event;
+use evpose_host::dataset::{
+    self, mean_label, nearest_sample, project_label, Dataset, DatasetManifest, DatasetOptions,
+    LabelRule, Source, SplitFilter, JOINTS,
+};
+use evpose_host::eval;
+use evpose_host::simulate::{self, dhp19_cameras, SimOptions, Split};
+use evpose_host::summary::summarize_with;
+use evpose_sim::Movement;
+
+fn pose(v: f32) -> [[f32; 3]; JOINTS] {
+    [[v, 2.0 * v, 1000.0 + v]; JOINTS]
+}
+
+#[test]
+fn simulated_recordings_read_back_with_their_per_camera_counts() {
+    let dir = tempfile::tempdir().unwrap();
+    let opts = SimOptions {
+        seed: 3,
+        subjects: 1,
+        seconds: 0.25,
+        movements: vec![Movement::JumpingJacks, Movement::NoPerson],
+        split: Split::Test,
+    };
+    let m = simulate::generate(dir.path(), &opts, |_, _| {}).unwrap();
+    assert_eq!(m.recordings.len(), 2);
+    for r in &m.recordings {
+        let s = summarize_with(&dir.path().join(&r.file), &Default::default()).unwrap();
+        assert_eq!(s.format.name(), "aedat2-dhp19", "{}", r.file);
+        let counts: Vec<u64> = (0..4)
+            .map(|c| {
+                s.cameras
+                    .iter()
+                    .find(|x| x.camera == c)
+                    .map_or(0, |x| x.events)
+            })
+            .collect();
+        assert_eq!(counts, r.events.to_vec(), "{}", r.file);
+        assert!(
+            r.events.iter().all(|&n| n > 0),
+            "{}: {:?}",
+            r.file,
+            r.events
+        );
+        assert!(s
+            .cameras
+            .iter()
+            .all(|c| (c.width, c.height) == (Some(346), Some(260))));
+    }
+    // Ground truth: 100 Hz for the person, none without one; the manifest reads back.
+    assert!(m.recordings[0].gt.is_some() && m.recordings[1].gt.is_none());
+    let gt = simulate::read_gt(&dir.path().join(m.recordings[0].gt.as_ref().unwrap())).unwrap();
+    assert_eq!(gt.len(), 25);
+    assert_eq!(simulate::read_manifest(dir.path()).unwrap(), m);
+    // The same seed writes the same bytes.
+    let again = tempfile::tempdir().unwrap();
+    simulate::generate(again.path(), &opts, |_, _| {}).unwrap();
+    for r in &m.recordings {
+        assert!(
+            std::fs::read(dir.path().join(&r.file)).unwrap()
+                == std::fs::read(again.path().join(&r.file)).unwrap(),
+            "{} differs between two runs with one seed",
+            r.file
+        );
+    }
+}
+
+#[test]
+fn mean_label_averages_the_samples_inside_the_window() {
+    let gt: Vec<_> = (0..10).map(|k| pose(k as f32)).collect();
+    // Samples at 0, 10, …, 90 ms. [15 ms, 42 ms] holds samples 2, 3 and 4: mean 3.
+    assert_eq!(mean_label(&gt, 0, (15_000, 42_000)), Some(pose(3.0)));
+    // Boundaries are inclusive: [20 ms, 40 ms] is samples 2..=4 as well.
+    assert_eq!(mean_label(&gt, 0, (20_000, 40_000)), Some(pose(3.0)));
+    // With the first sample at 5 ms on the events' clock, [15, 42] holds samples 1..=3.
+    assert_eq!(mean_label(&gt, 5_000, (15_000, 42_000)), Some(pose(2.0)));
+    // No sample inside (a 3 ms window between two samples): the nearest to its middle.
+    assert_eq!(mean_label(&gt, 0, (21_000, 24_000)), Some(pose(2.0)));
+    assert_eq!(mean_label(&gt, 0, (26_000, 29_000)), Some(pose(3.0)));
+    // Past the end: the last sample. No ground truth: no label.
+    assert_eq!(mean_label(&gt, 0, (500_000, 600_000)), Some(pose(9.0)));
+    assert_eq!(mean_label(&[], 0, (0, 1)), None);
+    assert_eq!(nearest_sample(10, 0, 44_999), 4);
+    assert_eq!(nearest_sample(10, 0, 45_001), 5);
+    assert_eq!(nearest_sample(10, 0, -7), 0);
+}
+
+/// A hand-built recording: camera 2 and 3 events at a known place, a pose moving linearly.
+fn hand_built() -> (Source, Vec<(u8, Event)>) {
+    let gt: Vec<_> = (0..101).map(|k| pose(k as f32)).collect(); // 1 s at 100 Hz
+    let source = Source {
+        events: "hand-built".into(),
+        gt,
+        gt_t0_us: 0,
+        subject: 7,
+        movement: "test".into(),
+        split: Split::Train,
+    };
+    // 65,000 events over 1 s: cameras 0..=3 in turn, 15.4 µs apart.
+    let events = (0..65_000u32)
+        .map(|i| {
+            let t = i64::from(i) * 1_000_000 / 65_000;
+            (
+                (i % 4) as u8,
+                Event::new((i % 300) as u16, (i / 300 % 200) as u16, t, i % 2 == 0),
+            )
+        })
+        .collect();
+    (source, events)
+}
+
+#[test]
+fn mean_and_last_label_windows_of_a_hand_built_recording() {
+    let (source, events) = hand_built();
+    let cameras: Vec<_> = [2u8, 3]
+        .iter()
+        .map(|&c| (c, dhp19_cameras().unwrap()[usize::from(c)]))
+        .collect();
+    let mut opts = DatasetOptions {
+        label: LabelRule::Mean,
+        points: 64,
+        cameras: vec![2, 3],
+        split: SplitFilter::All,
+        seed: 0,
+    };
+    // Mean Label: two full 30,000-event windows (the 5,000-event tail is not one), each in
+    // cameras 2 and 3: 7,500 events each.
+    let s = dataset::windows(&source, &events, &cameras, &opts, 0).unwrap();
+    assert_eq!(s.len(), 4);
+    for (i, sample) in s.iter().enumerate() {
+        let w = i / 2;
+        assert_eq!(sample.window as usize, w);
+        assert_eq!(sample.camera, [2, 3][i % 2]);
+        assert_eq!(sample.points.len(), 64);
+        let (first, last) = (events[w * 30_000].1.t, events[w * 30_000 + 29_999].1.t);
+        assert_eq!(sample.span_us, [first, last]);
+        assert_eq!(Some(sample.gt3d), mean_label(&source.gt, 0, (first, last)));
+        // The label is the mean of the samples in the span: the pose at the span's middle
+        // sample index, as the pose grows linearly.
+        let k0 = (first as f64 / 10_000.0).ceil();
+        let k1 = (last as f64 / 10_000.0).floor();
+        assert!((sample.gt3d[0][0] - ((k0 + k1) / 2.0) as f32).abs() < 1e-4);
+        let (label, mask) = project_label(&cameras[i % 2].1, &sample.gt3d);
+        assert_eq!((sample.label2d, sample.mask), (label, mask));
+    }
+    // Last Label: per camera, 16,250 events → two 7,500-event windows; the label is the sample
+    // nearest the last event.
+    opts.label = LabelRule::Last;
+    let s = dataset::windows(&source, &events, &cameras, &opts, 0).unwrap();
+    assert_eq!(s.len(), 4);
+    for sample in &s {
+        let k = nearest_sample(source.gt.len(), 0, sample.span_us[1]);
+        assert_eq!(sample.gt3d, source.gt[k]);
+        assert!(sample.cloud_points > 0);
+    }
+    let mine: Vec<i64> = events
+        .iter()
+        .filter(|(c, _)| *c == 3)
+        .map(|(_, e)| e.t)
+        .collect();
+    assert_eq!(s[3].span_us, [mine[7_500], mine[14_999]]);
+}
+
+fn tiny_dataset(label2d: Vec<[[f32; 2]; JOINTS]>, mask: Vec<[u8; JOINTS]>) -> Dataset {
+    let n = label2d.len();
+    Dataset {
+        dir: "unused".into(),
+        manifest: DatasetManifest {
+            generator: "test".into(),
+            label: LabelRule::Mean,
+            points: 1,
+            cameras: vec![2, 3],
+            split: SplitFilter::All,
+            samples: n as u64,
+            dropped_short: 0,
+            movements: vec!["m".into()],
+            recordings: vec!["r".into()],
+            synthetic: true,
+        },
+        label2d,
+        mask,
+        gt3d: vec![pose(0.0); n],
+        camera: (0..n).map(|i| [2, 3][i % 2]).collect(),
+        movement: vec![0; n],
+        recording: vec![0; n],
+        window: (0..n).map(|i| (i / 2) as u32).collect(),
+    }
+}
+
+#[test]
+fn mpjpe_on_hand_computed_cases() {
+    let cams = dhp19_cameras().unwrap();
+    let front = [(2u8, &cams[2]), (3u8, &cams[3])];
+    let label = [[100.0, 100.0]; JOINTS];
+    // Sample 0 (camera 2): every joint off by (3, 4) → 5 px. Sample 1 (camera 3): exact, but
+    // joint 0 masked out. MPJPE2D = (13 · 5 + 12 · 0) / 25.
+    let ds = tiny_dataset(
+        vec![label, label],
+        vec![[1; JOINTS], {
+            let mut m = [1; JOINTS];
+            m[0] = 0;
+            m
+        }],
+    );
+    let pred = vec![[[103.0, 104.0]; JOINTS], label];
+    let r = eval::evaluate(&ds, &pred, front, "test".into(), 0.0).unwrap();
+    assert!((r.mpjpe2d_px.unwrap() - 65.0 / 25.0).abs() < 1e-12);
+    assert_eq!(r.per_camera[&2].mpjpe2d_px, Some(5.0));
+    assert_eq!(r.per_camera[&3].mpjpe2d_px, Some(0.0));
+    assert_eq!(r.per_joint[0].joints2d, 1);
+    assert_eq!(r.per_joint[1].mpjpe2d_px, Some(2.5));
+    // 3-D: the two cameras' projections of a known point triangulate back onto it: 0 mm.
+    let x = [100.0f32, -50.0, 900.0];
+    let mut ds = tiny_dataset(vec![label, label], vec![[1; JOINTS]; 2]);
+    ds.gt3d = vec![[x; JOINTS]; 2];
+    let proj = |c: &evpose_core::geometry::Camera| {
+        let (u, v) = c.project([100.0, -50.0, 900.0]).unwrap();
+        [[u as f32, v as f32]; JOINTS]
+    };
+    let r = eval::evaluate(
+        &ds,
+        &[proj(&cams[2]), proj(&cams[3])],
+        front,
+        "t".into(),
+        0.0,
+    )
+    .unwrap();
+    assert_eq!(r.windows, 1);
+    assert!(r.mpjpe3d_mm.unwrap() < 0.5, "{:?}", r.mpjpe3d_mm);
+    // Moved 100 mm along z, the error is 100 mm.
+    ds.gt3d = vec![[[100.0, -50.0, 1000.0]; JOINTS]; 2];
+    let r = eval::evaluate(
+        &ds,
+        &[proj(&cams[2]), proj(&cams[3])],
+        front,
+        "t".into(),
+        0.0,
+    )
+    .unwrap();
+    assert!((r.mpjpe3d_mm.unwrap() - 100.0).abs() < 0.5);
+    // The mean-pose baseline predicts the training set's mean visible label per camera.
+    let train = tiny_dataset(
+        vec![
+            [[10.0, 20.0]; JOINTS],
+            [[0.0; 2]; JOINTS],
+            [[30.0, 40.0]; JOINTS],
+            [[1.0; 2]; JOINTS],
+        ],
+        vec![[1; JOINTS]; 4],
+    );
+    let p = eval::mean_pose(&train, &ds).unwrap();
+    assert_eq!(p[0], [[20.0, 30.0]; JOINTS]);
+    assert_eq!(p[1], [[1.0, 1.0]; JOINTS]);
+}
+
+#[test]
+fn a_dataset_round_trips_through_its_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = dir.path().join("sim");
+    let opts = SimOptions {
+        seed: 5,
+        subjects: 1,
+        seconds: 0.6,
+        movements: vec![Movement::JumpingJacks],
+        split: Split::Train,
+    };
+    simulate::generate(&sim, &opts, |_, _| {}).unwrap();
+    let out = dir.path().join("ds");
+    let dopts = DatasetOptions {
+        label: LabelRule::Mean,
+        points: 256,
+        cameras: vec![2, 3],
+        split: SplitFilter::All,
+        seed: 1,
+    };
+    let m = dataset::build(&sim, &out, &dopts, |_, _| {}).unwrap();
+    let ds = Dataset::open(&out).unwrap();
+    assert_eq!(ds.len() as u64, m.samples);
+    assert!(ds.len() >= 2, "{} samples", ds.len());
+    // Row i of the files is what the library computes for that window.
+    let source = &dataset::sources(&sim).unwrap()[0];
+    let events = dataset::read_events(&source.events).unwrap();
+    let cams = dhp19_cameras().unwrap();
+    let cameras = vec![(2, cams[2]), (3, cams[3])];
+    let want = dataset::windows(source, &events, &cameras, &dopts, 0).unwrap();
+    assert_eq!(want.len(), ds.len());
+    let points = ds.points_range(0, ds.len()).unwrap();
+    for (i, w) in want.iter().enumerate() {
+        assert_eq!(points[i], w.points, "row {i}");
+        assert_eq!(
+            (ds.label2d[i], ds.mask[i], ds.gt3d[i]),
+            (w.label2d, w.mask, w.gt3d)
+        );
+        assert_eq!((ds.camera[i], ds.window[i]), (w.camera, w.window));
+    }
+    // The test split of a training set is empty.
+    let test = dataset::build(
+        &sim,
+        &dir.path().join("t"),
+        &DatasetOptions {
+            split: SplitFilter::Test,
+            ..dopts
+        },
+        |_, _| {},
+    )
+    .unwrap();
+    assert_eq!(test.samples, 0);
+}
