@@ -96,6 +96,9 @@ pub struct DatasetOptions {
     pub split: SplitFilter,
     /// Seed of the point sampler (per recording: this seed and the recording's index).
     pub seed: u64,
+    /// DHP19's preprocessing ([`dhp19_filter`]): `None` applies it to real DHP19 recordings
+    /// only.
+    pub dhp19_filters: Option<bool>,
 }
 
 /// A recording with ground truth, wherever it came from.
@@ -105,14 +108,17 @@ pub struct Source {
     pub events: PathBuf,
     /// Ground truth, mm, one pose per 10 ms from `gt_t0_us` (empty: no person).
     pub gt: Vec<[[f32; 3]; JOINTS]>,
-    /// Time of the first ground-truth sample on the events' clock, µs.
-    pub gt_t0_us: i64,
+    /// Time of the first ground-truth sample on the events' clock, µs; `None`: the first
+    /// event's time (DHP19's fallback when a file has no trigger events).
+    pub gt_t0_us: Option<i64>,
     /// Subject id.
     pub subject: i64,
     /// Movement name.
     pub movement: String,
     /// Its split.
     pub split: Split,
+    /// A real DHP19 recording (DHP19's preprocessing applies by default).
+    pub real: bool,
 }
 
 /// One labelled window of one camera.
@@ -161,14 +167,13 @@ pub struct DatasetManifest {
     pub synthetic: bool,
 }
 
-/// The recordings of a directory: an `evpose sim` set (its manifest).
+/// The recordings of a directory: an `evpose sim` set (its manifest), or real DHP19 files
+/// ([`dhp19_sources`]).
 pub fn sources(dir: &Path) -> Result<Vec<Source>> {
-    let m = simulate::read_manifest(dir).with_context(|| {
-        format!(
-            "{}: no evpose sim manifest (real DHP19 folders: see the README's dataset section)",
-            dir.display()
-        )
-    })?;
+    if !dir.join(simulate::MANIFEST).exists() {
+        return dhp19_sources(dir);
+    }
+    let m = simulate::read_manifest(dir)?;
     m.recordings
         .iter()
         .map(|r| {
@@ -178,13 +183,138 @@ pub fn sources(dir: &Path) -> Result<Vec<Source>> {
                     Some(g) => simulate::read_gt(&dir.join(g))?,
                     None => Vec::new(),
                 },
-                gt_t0_us: 0,
+                gt_t0_us: Some(0),
                 subject: r.subject as i64,
                 movement: r.movement.clone(),
                 split: m.split,
+                real: false,
             })
         })
         .collect()
+}
+
+/// Real DHP19 recordings in `dir`: every `S<subject>_<session>_<movement>.aedat` (DHP19's
+/// naming) with its Vicon file `S<subject>_<session>_<movement>.mat` beside it (`XYZPOS`, read
+/// by [`crate::dhp19::mat`], joints by name). DHP19's split: subjects 1–12 train, 13–17 test.
+///
+/// Not verified against real DHP19 files (none are available to this project): the Vicon
+/// clock starts at the first event (DHP19's own fallback; its code aligns with trigger events,
+/// which the AEDAT 2.0 reader skips), and pixels are the sensor's (DHP19's frame code mirrors
+/// x), so labels may need that mirror. See the README.
+pub fn dhp19_sources(dir: &Path) -> Result<Vec<Source>> {
+    let mut out = Vec::new();
+    let mut names: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("cannot read {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("aedat"))
+        })
+        .collect();
+    names.sort();
+    for events in names {
+        let stem = events
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .unwrap_or_default()
+            .to_string();
+        let parts: Vec<&str> = stem.trim_start_matches(['S', 's']).split('_').collect();
+        let (Some(subject), Some(movement)) = (
+            parts.first().and_then(|s| s.parse::<i64>().ok()),
+            parts.get(2),
+        ) else {
+            bail!(
+                "{}: not named S<subject>_<session>_<movement>.aedat",
+                events.display()
+            );
+        };
+        let mat = events.with_extension("mat");
+        let bytes =
+            std::fs::read(&mat).with_context(|| format!("cannot read {}", mat.display()))?;
+        let vicon =
+            crate::dhp19::mat::read_xyzpos(&bytes).with_context(|| mat.display().to_string())?;
+        let gt = vicon
+            .dhp19_frames()
+            .with_context(|| mat.display().to_string())?
+            .iter()
+            .map(|f| f.map(|j| j.map(|v| v as f32)))
+            .collect();
+        out.push(Source {
+            events,
+            gt,
+            gt_t0_us: None,
+            subject,
+            movement: format!("{}-{}", parts.get(1).unwrap_or(&"?"), movement),
+            split: if subject <= 12 {
+                Split::Train
+            } else {
+                Split::Test
+            },
+            real: true,
+        });
+    }
+    if out.is_empty() {
+        bail!(
+            "{}: neither an evpose sim directory (manifest.json) nor DHP19 files (S*_*_*.aedat with .mat)",
+            dir.display()
+        );
+    }
+    Ok(out)
+}
+
+/// What [`dhp19_filter`] removed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FilterStats {
+    /// Events of hot pixels (≥ [`HOT_PIXEL_EVENTS`] events in the recording).
+    pub hot: u64,
+    /// Events without a neighbour within [`BACKGROUND_WINDOW_US`].
+    pub background: u64,
+}
+
+/// A pixel with at least this many events in a recording is hot (DHP19's preprocessing).
+pub const HOT_PIXEL_EVENTS: u32 = 10_000;
+/// DHP19's background-activity filter: an event needs a neighbour event this recent, µs.
+pub const BACKGROUND_WINDOW_US: i64 = 70_000;
+
+/// DHP19's preprocessing: drops hot pixels' events, then every event none of whose 8
+/// neighbours (same camera) fired within the last 70 ms (jAER's background-activity filter:
+/// each event stamps its neighbours; an event passes if its own stamp is recent).
+pub fn dhp19_filter(events: &mut Vec<(u8, Event)>, width: u16, height: u16) -> FilterStats {
+    let (w, h) = (usize::from(width), usize::from(height));
+    let at = |c: u8, e: &Event| (usize::from(c & 3) * h + usize::from(e.y)) * w + usize::from(e.x);
+    let inside = |e: &Event| usize::from(e.x) < w && usize::from(e.y) < h;
+    let mut counts = vec![0u32; 4 * w * h];
+    for (c, e) in events.iter().filter(|(_, e)| inside(e)) {
+        counts[at(*c, e)] += 1;
+    }
+    let before = events.len();
+    events.retain(|(c, e)| inside(e) && counts[at(*c, e)] < HOT_PIXEL_EVENTS);
+    let hot = (before - events.len()) as u64;
+    let mut stamp = vec![i64::MIN; 4 * w * h];
+    let before = events.len();
+    events.retain(|(c, e)| {
+        let keep = stamp[at(*c, e)] != i64::MIN && e.t - stamp[at(*c, e)] <= BACKGROUND_WINDOW_US;
+        let (x, y) = (i32::from(e.x), i32::from(e.y));
+        for dy in -1..=1 {
+            for dx in -1..=1 {
+                let (nx, ny) = (x + dx, y + dy);
+                if (dx, dy) != (0, 0)
+                    && nx >= 0
+                    && ny >= 0
+                    && (nx as usize) < w
+                    && (ny as usize) < h
+                {
+                    let n = (usize::from(*c & 3) * h + ny as usize) * w + nx as usize;
+                    stamp[n] = e.t;
+                }
+            }
+        }
+        keep
+    });
+    FilterStats {
+        hot,
+        background: (before - events.len()) as u64,
+    }
 }
 
 /// All events of a multi-camera recording, `(camera, event)` in file order.
@@ -303,6 +433,9 @@ pub fn windows(
     index: usize,
 ) -> Result<Vec<Sample>> {
     let mut rng = rng_from_seed(opts.seed ^ (index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let gt_t0 = source
+        .gt_t0_us
+        .unwrap_or_else(|| events.first().map_or(0, |(_, e)| e.t));
     let mut out = Vec::new();
     let mut push = |window: u32,
                     (t0, t1): (i64, i64),
@@ -333,7 +466,7 @@ pub fn windows(
                     break; // a short tail is not a window
                 }
                 let span = (chunk[0].1.t, chunk[chunk.len() - 1].1.t);
-                let Some(label) = mean_label(&source.gt, source.gt_t0_us, span) else {
+                let Some(label) = mean_label(&source.gt, gt_t0, span) else {
                     continue;
                 };
                 for (c, cam) in cameras {
@@ -358,7 +491,7 @@ pub fn windows(
                         break;
                     }
                     let span = (chunk[0].t, chunk[chunk.len() - 1].t);
-                    let k = nearest_sample(source.gt.len(), source.gt_t0_us, span.1);
+                    let k = nearest_sample(source.gt.len(), gt_t0, span.1);
                     push(w as u32, span, *c, cam, chunk, source.gt[k], &mut rng)?;
                 }
             }
@@ -452,15 +585,20 @@ pub fn build(
             SplitFilter::Test => s.split == Split::Test,
         })
         .collect();
-    let calibration = dir.join(
-        simulate::read_manifest(dir)
-            .map(|m| m.calibration)
-            .unwrap_or_else(|_| "calibration".into()),
-    );
+    // The set's calibration (an `evpose sim` directory has one), else the bundled DHP19 one.
+    let calibration = simulate::read_manifest(dir)
+        .ok()
+        .map(|m| dir.join(m.calibration));
     let cameras: Vec<(u8, Camera)> = opts
         .cameras
         .iter()
-        .map(|&c| Ok((c, crate::dhp19::camera(&calibration, c)?)))
+        .map(|&c| {
+            let cam = match &calibration {
+                Some(d) => crate::dhp19::camera(d, c)?,
+                None => crate::dhp19::bundled_camera(c)?,
+            };
+            Ok((c, cam))
+        })
         .collect::<Result<_>>()?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let mut movements: Vec<String> = Vec::new();
@@ -479,7 +617,10 @@ pub fn build(
             .par_iter()
             .enumerate()
             .map(|(i, s)| {
-                let events = read_events(&s.events)?;
+                let mut events = read_events(&s.events)?;
+                if opts.dhp19_filters.unwrap_or(s.real) {
+                    dhp19_filter(&mut events, crate::dhp19::WIDTH, crate::dhp19::HEIGHT);
+                }
                 let r = windows(s, &events, &cameras, opts, c * chunk + i);
                 progress(
                     done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
@@ -513,7 +654,7 @@ pub fn build(
             .iter()
             .map(|s| s.events.display().to_string())
             .collect(),
-        synthetic: true,
+        synthetic: sources.iter().all(|s| !s.real),
     };
     let path = out.join("manifest.json");
     std::fs::write(&path, serde_json::to_string_pretty(&manifest)?)

@@ -12,6 +12,7 @@
 //! | ground truth | [`dataset`] (labelled windows for training), [`eval`] (MPJPE 2-D and 3-D) |
 //! | models | [`model`] (blobs, quantization; ONNX and tract with feature `onnx`), [`inputs`], [`parity`] |
 //! | costs | [`budget`] (MACs, bytes, firmware images), [`bench`] |
+//! | pictures | [`render`] (event frames with skeletons) |
 //! | files | [`array`] (`.npy`), [`assets`] (what the binary embeds) |
 //!
 //! Feature `onnx` (default): ONNX import, the quantized ONNX twin and tract. Without it the
@@ -33,6 +34,7 @@ pub mod model;
 pub mod parity;
 pub mod pipeline;
 pub mod pose;
+pub mod render;
 pub mod simulate;
 pub mod summary;
 pub mod triangulate;

@@ -94,10 +94,11 @@ fn hand_built() -> (Source, Vec<(u8, Event)>) {
     let source = Source {
         events: "hand-built".into(),
         gt,
-        gt_t0_us: 0,
+        gt_t0_us: Some(0),
         subject: 7,
         movement: "test".into(),
         split: Split::Train,
+        real: false,
     };
     // 65,000 events over 1 s: cameras 0..=3 in turn, 15.4 µs apart.
     let events = (0..65_000u32)
@@ -125,6 +126,7 @@ fn mean_and_last_label_windows_of_a_hand_built_recording() {
         cameras: vec![2, 3],
         split: SplitFilter::All,
         seed: 0,
+        dhp19_filters: None,
     };
     // Mean Label: two full 30,000-event windows (the 5,000-event tail is not one), each in
     // cameras 2 and 3: 7,500 events each.
@@ -275,6 +277,7 @@ fn a_dataset_round_trips_through_its_files() {
         cameras: vec![2, 3],
         split: SplitFilter::All,
         seed: 1,
+        dhp19_filters: None,
     };
     let m = dataset::build(&sim, &out, &dopts, |_, _| {}).unwrap();
     let ds = Dataset::open(&out).unwrap();
@@ -308,4 +311,129 @@ fn a_dataset_round_trips_through_its_files() {
     )
     .unwrap();
     assert_eq!(test.samples, 0);
+}
+
+#[test]
+fn dhp19_filters_drop_hot_pixels_and_isolated_events() {
+    use evpose_host::dataset::{dhp19_filter, BACKGROUND_WINDOW_US, HOT_PIXEL_EVENTS};
+    let e = |x: u16, y: u16, t: i64| Event::new(x, y, t, true);
+    let mut events = vec![
+        (2, e(10, 10, 0)),                                // no neighbour before it: dropped
+        (2, e(11, 10, 1_000)),                            // (10, 10) fired 1 ms ago: kept
+        (3, e(12, 10, 2_000)), // another camera: its neighbours are camera 3's: dropped
+        (2, e(12, 11, 3_000)), // (11, 10) is a neighbour: kept
+        (2, e(40, 40, 4_000)), // isolated: dropped
+        (2, e(41, 41, 4_000 + BACKGROUND_WINDOW_US)), // exactly 70 ms: kept
+        (2, e(42, 42, 4_000 + 3 * BACKGROUND_WINDOW_US)), // too late: dropped
+    ];
+    // A hot pixel with 10,000 events (and a neighbour that keeps the rest alive).
+    let hot: Vec<(u8, Event)> = (0..HOT_PIXEL_EVENTS as i64)
+        .map(|i| (1u8, e(100, 100, 10 * i)))
+        .collect();
+    events.extend(hot);
+    events.sort_by_key(|(_, e)| e.t);
+    let stats = dhp19_filter(&mut events, 346, 260);
+    assert_eq!(stats.hot, u64::from(HOT_PIXEL_EVENTS));
+    assert_eq!(stats.background, 4);
+    let kept: Vec<(u16, u16)> = events.iter().map(|(_, e)| (e.x, e.y)).collect();
+    assert_eq!(kept, vec![(11, 10), (12, 11), (41, 41)]);
+}
+
+/// A MATLAB v5 file (uncompressed, little-endian) with `XYZPOS`: one (T, 3) double field per
+/// joint, column-major, written by hand from the format's specification.
+fn mat_file(names: &[&str], t: usize, value: impl Fn(usize, usize, usize) -> f64) -> Vec<u8> {
+    fn tag(out: &mut Vec<u8>, ty: u32, bytes: &[u8]) {
+        out.extend_from_slice(&ty.to_le_bytes());
+        out.extend_from_slice(&(bytes.len() as u32).to_le_bytes());
+        out.extend_from_slice(bytes);
+        out.resize(out.len().next_multiple_of(8), 0);
+    }
+    fn matrix(class: u32, dims: &[i32], name: &str, body: &[u8]) -> Vec<u8> {
+        let mut m = Vec::new();
+        tag(
+            &mut m,
+            6,
+            &[class.to_le_bytes(), 0u32.to_le_bytes()].concat(),
+        );
+        tag(
+            &mut m,
+            5,
+            &dims
+                .iter()
+                .flat_map(|d| d.to_le_bytes())
+                .collect::<Vec<u8>>(),
+        );
+        tag(&mut m, 1, name.as_bytes());
+        m.extend_from_slice(body);
+        let mut out = Vec::new();
+        tag(&mut out, 14, &m);
+        out
+    }
+    let mut body = Vec::new();
+    // Field name length (packed small element), then the names, 32 bytes each.
+    body.extend_from_slice(&((4u32 << 16) | 5).to_le_bytes());
+    body.extend_from_slice(&32u32.to_le_bytes());
+    let mut names_bytes = Vec::new();
+    for n in names {
+        let mut b = n.as_bytes().to_vec();
+        b.resize(32, 0);
+        names_bytes.extend(b);
+    }
+    tag(&mut body, 1, &names_bytes);
+    for j in 0..names.len() {
+        let mut data = Vec::new();
+        for axis in 0..3 {
+            for row in 0..t {
+                data.extend_from_slice(&value(j, row, axis).to_le_bytes());
+            }
+        }
+        let mut field = Vec::new();
+        tag(&mut field, 9, &data);
+        body.extend(matrix(6, &[t as i32, 3], "", &field));
+    }
+    let mut file = vec![b' '; 116];
+    file[..19].copy_from_slice(b"MATLAB 5.0 MAT-file");
+    file.extend_from_slice(&[0; 8]);
+    file.extend_from_slice(&0x0100u16.to_le_bytes());
+    file.extend_from_slice(b"IM");
+    file.extend(matrix(2, &[1, 1], "XYZPOS", &body));
+    file
+}
+
+#[test]
+fn real_dhp19_files_are_read_with_their_vicon_mat() {
+    let dir = tempfile::tempdir().unwrap();
+    // A simulated recording stands in for DHP19's events (same AEDAT 2.0 layout), named as
+    // DHP19 names them; its ground truth goes into a .mat with the fields out of order.
+    let sim = dir.path().join("sim");
+    let opts = SimOptions {
+        seed: 9,
+        subjects: 1,
+        seconds: 0.3,
+        movements: vec![Movement::Squats],
+        split: Split::Train,
+    };
+    let m = simulate::generate(&sim, &opts, |_, _| {}).unwrap();
+    let gt = simulate::read_gt(&sim.join(m.recordings[0].gt.as_ref().unwrap())).unwrap();
+    let real = dir.path().join("dhp19");
+    std::fs::create_dir_all(&real).unwrap();
+    std::fs::copy(sim.join(&m.recordings[0].file), real.join("S14_2_3.aedat")).unwrap();
+    let mut names = evpose_sim::JOINT_NAMES.to_vec();
+    names.swap(5, 6); // hipL before hipR, as one public loader has it: read by name
+    let order: Vec<usize> = names
+        .iter()
+        .map(|n| evpose_sim::JOINT_NAMES.iter().position(|m| m == n).unwrap())
+        .collect();
+    let mat = mat_file(&names, gt.len(), |j, row, axis| {
+        f64::from(gt[row][order[j]][axis])
+    });
+    std::fs::write(real.join("S14_2_3.mat"), mat).unwrap();
+    let sources = dataset::sources(&real).unwrap();
+    assert_eq!(sources.len(), 1);
+    let s = &sources[0];
+    assert_eq!((s.subject, s.split, s.real), (14, Split::Test, true));
+    assert_eq!(s.gt, gt);
+    assert_eq!(s.gt_t0_us, None);
+    // A directory with neither kind of recording is an error, not an empty dataset.
+    assert!(dataset::sources(dir.path()).is_err());
 }

@@ -15,7 +15,8 @@ use crate::{dhp19, model};
 /// Arguments of `evpose dataset` (stable: scripts call them).
 #[derive(Args, Debug)]
 pub struct DatasetArgs {
-    /// Directory of recordings with ground truth (an `evpose sim` output).
+    /// Directory of recordings with ground truth: an `evpose sim` output, or DHP19 files
+    /// (`S<subject>_<session>_<movement>.aedat` with its Vicon `.mat`).
     #[arg(long)]
     pub recordings: PathBuf,
     /// Output directory.
@@ -37,6 +38,19 @@ pub struct DatasetArgs {
     /// Seed of the point sampler.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// DHP19's preprocessing (hot pixels ≥ 10,000 events dropped, 70 ms background-activity
+    /// filter): `on`/`off`; default on for real DHP19 files, off for simulated ones.
+    #[arg(long)]
+    pub dhp19_filters: Option<OnOff>,
+}
+
+/// A switch.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum OnOff {
+    /// On.
+    On,
+    /// Off.
+    Off,
 }
 
 fn bar(len: u64, what: &str) -> ProgressBar {
@@ -58,6 +72,7 @@ pub fn dataset(a: &DatasetArgs) -> Result<()> {
         cameras: a.cameras.clone(),
         split: a.split,
         seed: a.seed,
+        dhp19_filters: a.dhp19_filters.map(|s| s == OnOff::On),
     };
     let start = Instant::now();
     let bar = bar(0, "recordings");

@@ -17,6 +17,7 @@ pub mod data;
 #[cfg(feature = "onnx")]
 pub mod model;
 pub mod pose;
+pub mod render;
 pub mod sim;
 pub mod triangulate;
 
@@ -57,6 +58,8 @@ pub enum Command {
     Dataset(data::DatasetArgs),
     /// MPJPE 2-D (px) and 3-D (mm) of a model, or of the mean-pose baseline, on a dataset.
     Eval(data::EvalArgs),
+    /// Draw a simulated window's events with its ground truth (and a model's prediction).
+    Render(render::RenderArgs),
     /// Simulate DHP19-style recordings (four cameras, ground truth, calibration) into a directory.
     Sim(sim::SimArgs),
     /// Measure throughput.
@@ -202,6 +205,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Sim(a) => sim::sim(&a),
         Command::Dataset(a) => data::dataset(&a),
         Command::Eval(a) => data::eval(&a),
+        Command::Render(a) => render::render(&a),
     }
 }
 

@@ -6,6 +6,8 @@
 //! centres (mm) in rows 3, 0, 2, 1 of `camera_positions.npy`. The two front cameras, used for
 //! 3-D evaluation, are channels 2 and 3. The files are bundled in `assets/dhp19/` (float64).
 
+pub mod mat;
+
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
@@ -34,13 +36,13 @@ pub fn default_dir() -> PathBuf {
 /// The bundled calibration files, embedded in the binary so that an installed `evpose` needs
 /// no checkout (the same bytes as in [`default_dir`]).
 const BUNDLED: [(&str, &[u8]); 5] = [
-    ("P1.npy", include_bytes!("../../assets/dhp19/P1.npy")),
-    ("P2.npy", include_bytes!("../../assets/dhp19/P2.npy")),
-    ("P3.npy", include_bytes!("../../assets/dhp19/P3.npy")),
-    ("P4.npy", include_bytes!("../../assets/dhp19/P4.npy")),
+    ("P1.npy", include_bytes!("../../../assets/dhp19/P1.npy")),
+    ("P2.npy", include_bytes!("../../../assets/dhp19/P2.npy")),
+    ("P3.npy", include_bytes!("../../../assets/dhp19/P3.npy")),
+    ("P4.npy", include_bytes!("../../../assets/dhp19/P4.npy")),
     (
         POSITIONS,
-        include_bytes!("../../assets/dhp19/camera_positions.npy"),
+        include_bytes!("../../../assets/dhp19/camera_positions.npy"),
     ),
 ];
 
