@@ -649,7 +649,7 @@ pub fn packed_bytes(model: &Model<'_>) -> usize {
 }
 
 /// Where [`pack_point_layers`] put each int8 point layer's packed weights (see
-/// [`kernels::packed`]) in the caller's buffer. Small and `Copy`: keep it next to the buffer,
+/// [`crate::kernels::packed`]) in the caller's buffer. Small and `Copy`: keep it next to the buffer,
 /// and get the weights back for [`Plan::packed`] with [`PackedLayout::weights`].
 ///
 /// Packing is for CPUs with a native packed kernel ([`Kernels::has_packed`]: x86 AVX-512

@@ -80,10 +80,8 @@ pub fn draw_skeleton(
         }
     }
     for (j, _) in visible.iter().enumerate().filter(|(_, &v)| v != 0) {
-        {
-            let (x, y) = at(j);
-            draw_filled_circle_mut(img, (x as i32, y as i32), 2 * scale as i32, colour);
-        }
+        let (x, y) = at(j);
+        draw_filled_circle_mut(img, (x as i32, y as i32), 2 * scale as i32, colour);
     }
 }
 

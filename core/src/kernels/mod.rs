@@ -57,7 +57,7 @@
 //! lanes of a register are 16 outputs: [`Kernels::matmat_packed_i8`] over it needs no
 //! horizontal sums and reads each point's inputs in place. The AVX-512 VNNI table has a native
 //! packed kernel ([`Kernels::has_packed`]); every other table runs the packed reference, so the
-//! packed engine ([`crate::infer::run_i8_packed`]) works, and is tested, everywhere.
+//! packed engine ([`crate::infer::Plan::packed`]) works, and is tested, everywhere.
 //!
 //! # Between the kernels
 //!

@@ -99,7 +99,7 @@ fn finish_row(acc: [f32; F32_LANES], w_tail: &[f32], x_tail: &[f32], b: f32) -> 
 /// (`K = x.len()`; `K = 0` gives `out[o] = bias[o]`).
 ///
 /// Element `j` of a row goes to partial sum `j mod 16` (the last `K mod 16` to a seventeenth,
-/// in index order); the partial sums are added in a fixed order ([`sum_lanes`]), then the bias.
+/// in index order); the partial sums are added in a fixed order (`sum_lanes`), then the bias.
 /// The order does not depend on the CPU, on the registers the loop is compiled for (Rust
 /// never contracts `a + w · x` into a fused multiply-add) or on which rows are computed
 /// together, so every kernel table gives the same bits. It is not index order: results differ

@@ -1,0 +1,431 @@
+//! The streaming AEDAT 4.0 reader.
+
+use std::io::{self, Read};
+
+use evpose_core::Event;
+
+use super::super::{
+    read_up_to, Batch, CameraInfo, Format, ReadError, ReadNotes, StreamInfo, BATCH_EVENTS,
+};
+use super::flatbuf::*;
+use super::xml::*;
+use super::*;
+
+/// Stream id and handling of each declared stream.
+pub(super) type Routes = Vec<(i32, StreamKind)>;
+
+/// What the reader does with a stream's packets.
+#[derive(Clone, Copy)]
+pub(super) enum StreamKind {
+    /// Events of the given camera.
+    Events(u8),
+    /// Anything else: skipped.
+    Other,
+}
+
+/// The undelivered events of the current packet, as byte positions in the decompressed buffer.
+#[derive(Default)]
+pub(super) struct Pending {
+    pub(super) camera: u8,
+    pub(super) next: usize,
+    pub(super) end: usize,
+    pub(super) index: usize,
+    pub(super) packet_offset: u64,
+}
+
+/// Streaming AEDAT 4.0 reader: one packet in memory at a time.
+pub struct Aedat4Reader<R> {
+    pub(super) inner: R,
+    pub(super) info: StreamInfo,
+    pub(super) compression: Compression,
+    pub(super) streams: Routes,
+    pub(super) data_table: Option<u64>,
+    pub(super) pos: u64,
+    pub(super) raw: Vec<u8>,
+    pub(super) plain: Vec<u8>,
+    pub(super) pending: Pending,
+    pub(super) skipped: u64,
+    pub(super) finished: bool,
+}
+
+/// What the file header says.
+pub(super) struct Header {
+    pub(super) compression: Compression,
+    pub(super) data_table: Option<u64>,
+    pub(super) streams: Vec<StreamDecl>,
+    pub(super) end: u64,
+}
+
+pub(super) fn read_header(r: &mut impl Read) -> Result<Header, ReadError> {
+    let mut magic = [0u8; MAGIC.len()];
+    let n = read_up_to(r, &mut magic)?;
+    if magic[..n] != MAGIC[..n] {
+        return Err(if magic.starts_with(b"#!AER-DAT") {
+            ReadError::Unsupported(format!(
+                "AEDAT version {:?}; only 4.0 is read",
+                String::from_utf8_lossy(&magic[9..n.min(12)])
+            ))
+        } else {
+            ReadError::Corrupt {
+                offset: 0,
+                message: "not an AEDAT 4.0 file (bad magic)".into(),
+            }
+        });
+    }
+    if n < MAGIC.len() {
+        return Err(ReadError::Truncated {
+            offset: 0,
+            what: "magic",
+        });
+    }
+    let mut size = [0u8; 4];
+    if read_up_to(r, &mut size)? < 4 {
+        return Err(ReadError::Truncated {
+            offset: MAGIC.len() as u64,
+            what: "IOHeader size",
+        });
+    }
+    let size = u32::from_le_bytes(size);
+    if size > MAX_HEADER_BYTES {
+        return Err(ReadError::Corrupt {
+            offset: MAGIC.len() as u64,
+            message: format!("IOHeader size {size} exceeds {MAX_HEADER_BYTES}"),
+        });
+    }
+    let mut buf = Vec::new();
+    r.take(u64::from(size)).read_to_end(&mut buf)?;
+    if buf.len() < size as usize {
+        return Err(ReadError::Truncated {
+            offset: HEADER_OFFSET,
+            what: "IOHeader",
+        });
+    }
+    let mut header = parse_io_header(&buf)?;
+    header.end = HEADER_OFFSET + u64::from(size);
+    if header.data_table.is_some_and(|t| t < header.end) {
+        return Err(ReadError::Corrupt {
+            offset: HEADER_OFFSET,
+            message: "IOHeader: data table position lies inside the header".into(),
+        });
+    }
+    Ok(header)
+}
+
+pub(super) fn parse_io_header(buf: &[u8]) -> Result<Header, ReadError> {
+    let fb = Flatbuffer {
+        buf,
+        offset: HEADER_OFFSET,
+        what: "IOHeader",
+    };
+    fb.expect_identifier(b"IOHE")?;
+    let root = fb.root()?;
+    let code = root.i32_or(0, 0)?;
+    let compression = Compression::from_code(code)
+        .ok_or_else(|| ReadError::Unsupported(format!("AEDAT 4 compression type {code}")))?;
+    let data_table = u64::try_from(root.i64_or(1, -1)?).ok();
+    let xml = root
+        .string(2)?
+        .ok_or_else(|| fb.corrupt("no infoNode".into()))?;
+    let streams = parse_streams(xml).map_err(|e| fb.corrupt(format!("infoNode XML: {e}")))?;
+    Ok(Header {
+        compression,
+        data_table,
+        streams,
+        end: 0,
+    })
+}
+
+/// Camera list and packet routing for the declared streams.
+pub(super) fn route_streams(decls: &[StreamDecl]) -> Result<(Vec<CameraInfo>, Routes), ReadError> {
+    let mut cameras = Vec::new();
+    let mut routes = Routes::new();
+    for d in decls {
+        if routes.iter().any(|(id, _)| *id == d.id) {
+            return Err(ReadError::Corrupt {
+                offset: HEADER_OFFSET,
+                message: format!("IOHeader: stream {} is declared twice", d.id),
+            });
+        }
+        let kind = if d.type_id == "EVTS" {
+            let id = u8::try_from(cameras.len())
+                .map_err(|_| ReadError::Unsupported("more than 256 event streams".into()))?;
+            cameras.push(CameraInfo {
+                id,
+                width: d.width,
+                height: d.height,
+                name: d.source.clone(),
+            });
+            StreamKind::Events(id)
+        } else {
+            StreamKind::Other
+        };
+        routes.push((d.id, kind));
+    }
+    Ok((cameras, routes))
+}
+
+/// Decompresses `raw` into `plain` (both cleared or swapped as needed).
+pub(super) fn decompress(
+    compression: Compression,
+    raw: &mut Vec<u8>,
+    plain: &mut Vec<u8>,
+    offset: u64,
+) -> Result<(), ReadError> {
+    plain.clear();
+    let limit = MAX_PACKET_BYTES + 1;
+    let result = match compression {
+        Compression::None => {
+            std::mem::swap(raw, plain);
+            Ok(plain.len())
+        }
+        Compression::Lz4 | Compression::Lz4High => lz4_flex::frame::FrameDecoder::new(&raw[..])
+            .take(limit)
+            .read_to_end(plain),
+        Compression::Zstd | Compression::ZstdHigh => {
+            zstd::stream::read::Decoder::with_buffer(&raw[..])
+                .and_then(|d| d.take(limit).read_to_end(plain))
+        }
+    };
+    let corrupt = |message: String| ReadError::Corrupt { offset, message };
+    match result {
+        Err(e) => Err(corrupt(format!(
+            "{} decompression failed: {e}",
+            compression.name()
+        ))),
+        Ok(_) if plain.len() as u64 > MAX_PACKET_BYTES => Err(corrupt(format!(
+            "packet decompresses to more than {MAX_PACKET_BYTES} bytes"
+        ))),
+        Ok(_) => Ok(()),
+    }
+}
+
+/// Start (in `plain`) and count of the event structs of a decompressed `EventPacket`.
+pub(super) fn event_vector(plain: &[u8], offset: u64) -> Result<(usize, usize), ReadError> {
+    let fb = Flatbuffer {
+        buf: plain,
+        offset,
+        what: "EventPacket",
+    };
+    // DV writes size-prefixed buffers; accept a bare one too.
+    let prefixed =
+        plain.len() >= 12 && &plain[8..12] == b"EVTS" && fb.u32(0)? as usize == plain.len() - 4;
+    let skip = if prefixed { 4 } else { 0 };
+    let body = Flatbuffer {
+        buf: &plain[skip..],
+        ..fb
+    };
+    body.expect_identifier(b"EVTS")?;
+    let (start, count) = body.root()?.vector(0, EVENT_BYTES)?.unwrap_or((0, 0));
+    Ok((start + skip, count))
+}
+
+impl<R: Read> Aedat4Reader<R> {
+    /// Parses the magic and the IOHeader; events are read by [`EventReader::read_batch`].
+    pub fn new(mut inner: R) -> Result<Self, ReadError> {
+        let header = read_header(&mut inner)?;
+        let (cameras, streams) = route_streams(&header.streams)?;
+        Ok(Self {
+            inner,
+            info: StreamInfo {
+                format: Format::Aedat4,
+                cameras,
+                event_count: None,
+            },
+            compression: header.compression,
+            streams,
+            data_table: header.data_table,
+            pos: header.end,
+            raw: Vec::new(),
+            plain: Vec::new(),
+            pending: Pending::default(),
+            skipped: 0,
+            finished: false,
+        })
+    }
+
+    /// Packets of non-event streams (frames, IMU, triggers, …) skipped so far.
+    pub fn skipped_packets(&self) -> u64 {
+        self.skipped
+    }
+
+    /// The file's packet compression.
+    pub fn compression(&self) -> Compression {
+        self.compression
+    }
+
+    /// Gives back the underlying reader.
+    pub fn into_inner(self) -> R {
+        self.inner
+    }
+
+    /// Loads the next event packet into `pending`; `false` at the end of the packets.
+    fn next_packet(&mut self) -> Result<bool, ReadError> {
+        loop {
+            let start = self.pos;
+            if self.data_table == Some(start) {
+                return Ok(false);
+            }
+            let mut head = [0u8; 8];
+            match read_up_to(&mut self.inner, &mut head)? {
+                0 if self.data_table.is_none() => return Ok(false),
+                0 => {
+                    return Err(ReadError::Truncated {
+                        offset: start,
+                        what: "packets (the file ends before its data table)",
+                    })
+                }
+                8 => {}
+                _ => {
+                    return Err(ReadError::Truncated {
+                        offset: start,
+                        what: "packet header",
+                    })
+                }
+            }
+            let (stream, size) = self.packet_header(start, head)?;
+            self.pos = start + 8 + size;
+            match self.route(start, stream)? {
+                StreamKind::Other => {
+                    self.skip_payload(start, size)?;
+                    self.skipped += 1;
+                }
+                StreamKind::Events(camera) => {
+                    self.load_events(start, size, camera)?;
+                    return Ok(true);
+                }
+            }
+        }
+    }
+
+    /// Checks a packet header; returns the stream id and payload size.
+    fn packet_header(&self, start: u64, head: [u8; 8]) -> Result<(i32, u64), ReadError> {
+        let [a, b, c, d, e, f, g, h] = head;
+        let stream = i32::from_le_bytes([a, b, c, d]);
+        let size = i32::from_le_bytes([e, f, g, h]);
+        let corrupt = |message: String| ReadError::Corrupt {
+            offset: start,
+            message,
+        };
+        let size = u64::try_from(size)
+            .ok()
+            .filter(|&s| s <= MAX_PACKET_BYTES)
+            .ok_or_else(|| corrupt(format!("packet size {size} is out of range")))?;
+        if let Some(table) = self.data_table {
+            if start + 8 + size > table {
+                return Err(corrupt(format!(
+                    "packet runs past the data table at {table}"
+                )));
+            }
+        }
+        Ok((stream, size))
+    }
+
+    fn route(&self, start: u64, stream: i32) -> Result<StreamKind, ReadError> {
+        self.streams
+            .iter()
+            .find(|(id, _)| *id == stream)
+            .map(|&(_, kind)| kind)
+            .ok_or_else(|| ReadError::Corrupt {
+                offset: start,
+                message: format!("packet of stream {stream}, which the header does not declare"),
+            })
+    }
+
+    fn skip_payload(&mut self, start: u64, size: u64) -> Result<(), ReadError> {
+        let copied = io::copy(&mut (&mut self.inner).take(size), &mut io::sink())?;
+        if copied < size {
+            return Err(ReadError::Truncated {
+                offset: start,
+                what: "packet",
+            });
+        }
+        Ok(())
+    }
+
+    fn load_events(&mut self, start: u64, size: u64, camera: u8) -> Result<(), ReadError> {
+        self.raw.clear();
+        (&mut self.inner).take(size).read_to_end(&mut self.raw)?;
+        if (self.raw.len() as u64) < size {
+            return Err(ReadError::Truncated {
+                offset: start,
+                what: "event packet",
+            });
+        }
+        decompress(self.compression, &mut self.raw, &mut self.plain, start)?;
+        let (first, count) = event_vector(&self.plain, start)?;
+        self.pending = Pending {
+            camera,
+            next: first,
+            end: first + count * EVENT_BYTES,
+            index: 0,
+            packet_offset: start,
+        };
+        Ok(())
+    }
+
+    /// Moves pending events into `batch` until it holds `BATCH_EVENTS`.
+    fn drain_pending(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
+        let p = &mut self.pending;
+        let room = BATCH_EVENTS.saturating_sub(batch.len());
+        let take = ((p.end - p.next) / EVENT_BYTES).min(room);
+        batch.events.reserve(take);
+        batch.cameras.reserve(take);
+        for chunk in self.plain[p.next..p.next + take * EVENT_BYTES].chunks_exact(EVENT_BYTES) {
+            let event = decode_event(chunk).ok_or_else(|| ReadError::Corrupt {
+                offset: p.packet_offset,
+                message: format!("event {} of the packet has a negative coordinate", p.index),
+            })?;
+            batch.push(p.camera, event);
+            p.index += 1;
+        }
+        p.next += take * EVENT_BYTES;
+        Ok(())
+    }
+
+    fn fill(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
+        while batch.len() < BATCH_EVENTS {
+            if self.pending.next < self.pending.end {
+                self.drain_pending(batch)?;
+            } else if !self.next_packet()? {
+                self.finished = true;
+                break;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Decodes one 16-byte event struct; `None` for a negative coordinate.
+pub(super) fn decode_event(chunk: &[u8]) -> Option<Event> {
+    let t = i64::from_le_bytes(chunk.get(0..8)?.try_into().ok()?);
+    let x = i16::from_le_bytes(chunk.get(8..10)?.try_into().ok()?);
+    let y = i16::from_le_bytes(chunk.get(10..12)?.try_into().ok()?);
+    let on = *chunk.get(12)? != 0;
+    Some(Event::new(
+        u16::try_from(x).ok()?,
+        u16::try_from(y).ok()?,
+        t,
+        on,
+    ))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Writer.
+
+impl<R: Read> super::super::source::Fill for Aedat4Reader<R> {
+    fn info(&self) -> &StreamInfo {
+        &self.info
+    }
+    fn notes(&self) -> ReadNotes {
+        ReadNotes {
+            skipped_packets: self.skipped,
+            ..ReadNotes::default()
+        }
+    }
+    fn fill_batch(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
+        self.fill(batch)
+    }
+    fn finished(&mut self) -> &mut bool {
+        &mut self.finished
+    }
+}
