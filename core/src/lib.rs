@@ -17,6 +17,7 @@
 //! | kernels | [`kernels`] | matrix kernels (row-major and packed weights), requantization, pooling: scalar reference and optimized versions |
 //! | decoding | [`simdr`] | SimDR labels and argmax decoding to 2-D joints |
 //! | per window | [`pipeline`] | one window of events in, one estimate out: the loop every pipeline runs |
+//! | skeleton | [`skeleton`] | DHP19's 13 joints: order, names, lines |
 //! | triangulation | `geometry` | projection and two-view triangulation of joints to 3-D (feature `geometry`) |
 //!
 //! Bad input never panics: it yields a typed error or a counted drop.
@@ -51,6 +52,7 @@ pub mod quant;
 pub mod raster;
 pub mod sample;
 pub mod simdr;
+pub mod skeleton;
 
 pub use event::Event;
 pub use infer::{

@@ -50,8 +50,7 @@ use crate::io::{self, Batch, Format, OpenOptions};
 use crate::pipeline::VecStorage;
 use crate::simulate::{self, Split};
 
-/// Joints per pose (DHP19).
-pub const JOINTS: usize = 13;
+pub use evpose_core::skeleton::JOINTS;
 /// Events over all cameras per Mean Label window.
 pub const MEAN_WINDOW_EVENTS: usize = 30_000;
 /// Events per camera per Last Label window.

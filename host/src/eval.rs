@@ -314,3 +314,31 @@ fn predict_batches(
     }
     Ok(out)
 }
+
+/// The per-joint errors of a report as a PNG-ready bar chart: MPJPE2D (px) and MPJPE3D (mm).
+pub fn per_joint_chart(r: &EvalReport) -> Result<image::RgbImage> {
+    use crate::render::{bar_chart, Panel};
+    let d2: Vec<Option<f64>> = r.per_joint.iter().map(|m| m.mpjpe2d_px).collect();
+    let d3: Vec<Option<f64>> = r.per_joint.iter().map(|m| m.mpjpe3d_mm).collect();
+    let title = format!(
+        "{}{}",
+        r.predictor,
+        if r.synthetic { " (synthetic data)" } else { "" }
+    );
+    bar_chart(
+        &title,
+        &evpose_core::skeleton::JOINT_NAMES,
+        &[
+            Panel {
+                title: "MPJPE2D per joint, px",
+                values: &d2,
+                colour: image::Rgb([70, 120, 200]),
+            },
+            Panel {
+                title: "MPJPE3D per joint, mm",
+                values: &d3,
+                colour: image::Rgb([220, 120, 50]),
+            },
+        ],
+    )
+}

@@ -8,24 +8,7 @@ use imageproc::drawing::{draw_filled_circle_mut, draw_line_segment_mut};
 
 use crate::dataset::JOINTS;
 
-/// Lines of the 13-joint skeleton (DHP19 order: head, shoulderR, shoulderL, elbowR, elbowL,
-/// hipR, hipL, handR, handL, kneeR, kneeL, footR, footL).
-pub const SKELETON: [(usize, usize); 14] = [
-    (0, 1),
-    (0, 2),
-    (1, 2),
-    (1, 3),
-    (3, 7),
-    (2, 4),
-    (4, 8),
-    (1, 5),
-    (2, 6),
-    (5, 6),
-    (5, 9),
-    (9, 11),
-    (6, 10),
-    (10, 12),
-];
+pub use evpose_core::skeleton::LINES as SKELETON;
 
 /// Ground truth's colour.
 pub const GROUND_TRUTH: Rgb<u8> = Rgb([40, 220, 60]);
@@ -137,4 +120,90 @@ pub fn ground_truth_frame(
     let mut img = event_frame(&mine, cam.width(), cam.height(), scale)?;
     draw_skeleton(&mut img, &sample.label2d, &sample.mask, scale, GROUND_TRUTH);
     Ok((img, sample))
+}
+
+/// The font of charts: DejaVu Sans Mono (Bitstream Vera licence, `assets/fonts/`), embedded.
+const FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSansMono.ttf");
+
+/// One panel of a bar chart: a title, a unit and one value per bar (`None`: no bar).
+pub struct Panel<'a> {
+    /// Title above the panel.
+    pub title: &'a str,
+    /// The values, one per label.
+    pub values: &'a [Option<f64>],
+    /// Bar colour.
+    pub colour: Rgb<u8>,
+}
+
+/// A bar chart of panels stacked vertically, sharing the labels under every panel, values
+/// written above their bars.
+pub fn bar_chart(title: &str, labels: &[&str], panels: &[Panel<'_>]) -> Result<RgbImage> {
+    use ab_glyph::FontRef;
+    use imageproc::drawing::{draw_filled_rect_mut, draw_text_mut};
+    use imageproc::rect::Rect;
+    let font = FontRef::try_from_slice(FONT).context("the embedded chart font")?;
+    let (bar_w, gap, left, panel_h, top) = (44u32, 12u32, 16u32, 230u32, 40u32);
+    let width = left * 2 + labels.len() as u32 * (bar_w + gap);
+    let height = top + panels.len() as u32 * (panel_h + 50);
+    let mut img = RgbImage::from_pixel(width.max(320), height, Rgb([255, 255, 255]));
+    let ink = Rgb([20, 20, 20]);
+    draw_text_mut(&mut img, ink, left as i32, 8, 20.0, &font, title);
+    for (p, panel) in panels.iter().enumerate() {
+        if panel.values.len() != labels.len() {
+            bail!("{} values for {} labels", panel.values.len(), labels.len());
+        }
+        let y0 = top + p as u32 * (panel_h + 50);
+        draw_text_mut(
+            &mut img,
+            ink,
+            left as i32,
+            y0 as i32,
+            16.0,
+            &font,
+            panel.title,
+        );
+        let max = panel.values.iter().flatten().fold(0f64, |m, &v| m.max(v));
+        let base = y0 + panel_h;
+        for (i, v) in panel.values.iter().enumerate() {
+            let x = left + i as u32 * (bar_w + gap);
+            if let Some(v) = *v {
+                let h = if max > 0.0 {
+                    ((v / max) * f64::from(panel_h - 50)).round() as u32
+                } else {
+                    0
+                };
+                if h > 0 {
+                    let rect = Rect::at(x as i32, (base - h) as i32).of_size(bar_w, h);
+                    draw_filled_rect_mut(&mut img, rect, panel.colour);
+                }
+                let text = format!("{v:.1}");
+                draw_text_mut(
+                    &mut img,
+                    ink,
+                    x as i32,
+                    (base - h) as i32 - 16,
+                    13.0,
+                    &font,
+                    &text,
+                );
+            }
+            // Six characters fit under a bar: "shoulderR" becomes "shouR".
+            let l = labels[i];
+            let label = if l.chars().count() > 6 && (l.ends_with('R') || l.ends_with('L')) {
+                format!("{}{}", &l[..4], &l[l.len() - 1..])
+            } else {
+                l.chars().take(6).collect()
+            };
+            draw_text_mut(
+                &mut img,
+                ink,
+                x as i32,
+                base as i32 + 4,
+                13.0,
+                &font,
+                &label,
+            );
+        }
+    }
+    Ok(img)
 }

@@ -437,3 +437,36 @@ fn real_dhp19_files_are_read_with_their_vicon_mat() {
     // A directory with neither kind of recording is an error, not an empty dataset.
     assert!(dataset::sources(dir.path()).is_err());
 }
+
+#[test]
+fn the_per_joint_chart_draws_one_bar_per_joint_and_figure() {
+    let cams = dhp19_cameras().unwrap();
+    let label = [[100.0, 100.0]; JOINTS];
+    let ds = tiny_dataset(vec![label, label], vec![[1; JOINTS]; 2]);
+    // Joint j off by j pixels in both cameras: bar heights grow with j.
+    let pred: [[f32; 2]; JOINTS] = std::array::from_fn(|j| [100.0 + j as f32, 100.0]);
+    let r = eval::evaluate(
+        &ds,
+        &[pred, pred],
+        [(2, &cams[2]), (3, &cams[3])],
+        "t".into(),
+        0.0,
+    )
+    .unwrap();
+    let img = eval::per_joint_chart(&r).unwrap();
+    let blue = image::Rgb([70u8, 120, 200]);
+    // Pixels of each 2-D bar, left to right: joint 0 has none, then strictly more.
+    let column_height = |x: u32| {
+        (0..img.height())
+            .filter(|&y| *img.get_pixel(x, y) == blue)
+            .count()
+    };
+    let heights: Vec<usize> = (0..JOINTS as u32)
+        .map(|j| column_height(16 + j * 56 + 20))
+        .collect();
+    assert_eq!(heights[0], 0);
+    assert!(
+        heights.windows(2).skip(1).all(|w| w[0] < w[1]),
+        "{heights:?}"
+    );
+}

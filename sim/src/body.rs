@@ -23,25 +23,7 @@
 use crate::rng::{tag, Rng};
 use crate::v3::{add, axpy, cross, normalize, scale, V3};
 
-/// Joints per skeleton.
-pub const JOINTS: usize = 13;
-
-/// Joint names in DHP19's order (the order of every `[_; JOINTS]` array in this crate).
-pub const JOINT_NAMES: [&str; JOINTS] = [
-    "head",
-    "shoulderR",
-    "shoulderL",
-    "elbowR",
-    "elbowL",
-    "hipR",
-    "hipL",
-    "handR",
-    "handL",
-    "kneeR",
-    "kneeL",
-    "footR",
-    "footL",
-];
+pub use evpose_core::skeleton::{JOINTS, JOINT_NAMES};
 
 /// Index of the head in a joint array.
 pub const HEAD: usize = 0;

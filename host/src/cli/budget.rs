@@ -16,7 +16,7 @@ pub struct BudgetArgs {
     #[arg(long)]
     pub model: PathBuf,
     /// Points per inference, for the total MACs.
-    #[arg(long, default_value_t = 2048)]
+    #[arg(long, default_value_t = evpose_core::pipeline::DEFAULT_POINTS as u64)]
     pub points: u64,
     /// Firmware image (ELF) to measure (default: the firmware's release build, if present).
     #[arg(long)]

@@ -122,6 +122,9 @@ pub struct EvalArgs {
     /// Write the report as JSON.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Write a PNG bar chart of the error per joint (2-D px and 3-D mm).
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
 }
 
 /// Runs `evpose eval`.
@@ -191,6 +194,9 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
     if let Some(path) = &a.json {
         std::fs::write(path, serde_json::to_string_pretty(&report)?)?;
     }
+    if let Some(path) = &a.plot {
+        crate::render::save(&eval::per_joint_chart(&report)?, path)?;
+    }
     print_report(&report);
     Ok(())
 }
@@ -247,7 +253,7 @@ fn print_report(r: &EvalReport) {
         );
     }
     println!("  {:<16} {:>8} {:>9}", "joint", "2-D px", "3-D mm");
-    for (name, m) in evpose_sim::JOINT_NAMES.iter().zip(&r.per_joint) {
+    for (name, m) in evpose_core::skeleton::JOINT_NAMES.iter().zip(&r.per_joint) {
         println!(
             "  {:<16} {:>8} {:>9}",
             name,

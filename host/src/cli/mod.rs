@@ -171,7 +171,7 @@ pub struct BenchRasterArgs {
     #[arg(long)]
     pub events: Option<PathBuf>,
     /// Events per window.
-    #[arg(long, default_value_t = 7_500)]
+    #[arg(long, default_value_t = evpose_core::raster::DEFAULT_WINDOW_EVENTS)]
     pub window_events: u32,
     /// Passes over the events.
     #[arg(long, default_value_t = 200)]

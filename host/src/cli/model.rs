@@ -79,7 +79,7 @@ pub struct SamplingArgs {
     #[arg(long)]
     pub points: Option<usize>,
     /// Events per window when cutting event recordings.
-    #[arg(long, default_value_t = 7_500)]
+    #[arg(long, default_value_t = evpose_core::raster::DEFAULT_WINDOW_EVENTS)]
     pub window_events: u32,
     /// Seed of the point sampler.
     #[arg(long, default_value_t = 0)]

@@ -24,21 +24,7 @@
 use std::fmt;
 
 /// Joint names of evpose's (and DHP19's MATLAB code's) joint order, as spelled in `XYZPOS`.
-pub const DHP19_JOINTS: [&str; 13] = [
-    "head",
-    "shoulderR",
-    "shoulderL",
-    "elbowR",
-    "elbowL",
-    "hipR",
-    "hipL",
-    "handR",
-    "handL",
-    "kneeR",
-    "kneeL",
-    "footR",
-    "footL",
-];
+pub use evpose_core::skeleton::JOINT_NAMES as DHP19_JOINTS;
 
 /// Vicon sampling period in DAVIS timestamp units (µs): DHP19's Vicon runs at 100 Hz.
 pub const VICON_PERIOD_US: u64 = 10_000;
