@@ -41,7 +41,7 @@ use anyhow::{bail, Context, Result};
 use evpose_core::geometry::Camera;
 use evpose_core::raster::DEFAULT_SLICES;
 use evpose_core::sample::{rng_from_seed, sample_window};
-use evpose_core::{Event, RasterConfig, Rasterizer, WindowRule};
+use evpose_core::{Event, Rasterizer};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -397,25 +397,21 @@ pub fn project_label(
     (label, mask)
 }
 
-/// Rasterizes one camera's events of a window as one window (the core's rasterizer) and
-/// samples `n` points.
+/// Rasterizes one camera's events of a window as one window with the core's rasterizer
+/// (`raster`, reused across a recording's windows: its capacity is the rule's largest window)
+/// and samples `n` points.
 fn cloud(
+    raster: &mut Rasterizer<VecStorage>,
     events: &[Event],
     n: usize,
     rng: &mut evpose_core::sample::SampleRng,
 ) -> Result<(Vec<[f32; 5]>, usize)> {
-    let capacity = events.len().max(1);
-    let config = RasterConfig {
-        window: WindowRule::Events(capacity as u32),
-        slices: DEFAULT_SLICES,
-        ..RasterConfig::DAVIS346
-    };
-    let mut r = Rasterizer::new(config, VecStorage::new(capacity, &config))?;
-    let closed = r.extend(events).1.is_some();
+    // A window of the full capacity closes by count; any other is closed by the flush.
+    let closed = raster.extend(events).1.is_some();
     let window = if closed {
-        r.last_window().unwrap_or_default()
+        raster.last_window().unwrap_or_default()
     } else {
-        r.flush()
+        raster.flush()
     };
     let mut idx = vec![0u32; n.max(window.len())];
     let mut rows = vec![[0f32; 5]; n.max(1)];
@@ -432,6 +428,12 @@ pub fn windows(
     index: usize,
 ) -> Result<Vec<Sample>> {
     let mut rng = rng_from_seed(opts.seed ^ (index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let capacity = match opts.label {
+        LabelRule::Mean => MEAN_WINDOW_EVENTS,
+        LabelRule::Last => LAST_WINDOW_EVENTS,
+    };
+    let size = (crate::dhp19::WIDTH, crate::dhp19::HEIGHT);
+    let mut raster = crate::pipeline::rasterizer(size, DEFAULT_SLICES, capacity as u32)?;
     let gt_t0 = source
         .gt_t0_us
         .unwrap_or_else(|| events.first().map_or(0, |(_, e)| e.t));
@@ -444,7 +446,7 @@ pub fn windows(
                     label: [[f32; 3]; JOINTS],
                     rng: &mut evpose_core::sample::SampleRng|
      -> Result<()> {
-        let (points, cloud_points) = cloud(evs, opts.points, rng)?;
+        let (points, cloud_points) = cloud(&mut raster, evs, opts.points, rng)?;
         let (label2d, mask) = project_label(cam, &label);
         out.push(Sample {
             points,
