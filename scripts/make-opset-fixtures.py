@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Writes the opset-matrix fixtures that `tests/opsets.rs` imports and checks.
 
-The paper's PointNet-SimDR family (shared/docs/paper-notes.md, "Network") in PyTorch, with tiny
-widths, exported with PyTorch's TorchScript exporter (`dynamo=False`, as the reference models
+The paper's PointNet-SimDR family (shared/docs/paper-notes.md, "Network"; the PyTorch definition
+is train/models.py's `PointNet`, the one training uses), with tiny widths, exported with PyTorch's TorchScript exporter (`dynamo=False`, as the reference models
 `pointnet-small.onnx` / `pointnet-paper.onnx` were) at every opset 11..18, with a fixed or a
 dynamic point count, two (J, W, H) sets and two width sets:
 
@@ -27,12 +27,13 @@ that every BatchNorm is non-trivial. Per model the script writes, to tests/fixtu
 - `<name>.simdr_x.npy`, `<name>.simdr_y.npy`: onnxruntime's outputs on that input (float32);
 and `manifest.json` listing every model's opset, fixed/dynamic, J, W, H and widths.
 
-Usage: python3 scripts/make-opset-fixtures.py
+Usage: python3 scripts/make-opset-fixtures.py  (with train/requirements.txt installed)
   (torch with the TorchScript ONNX exporter, onnx, onnxruntime, numpy; seeded: re-running gives
   the same outputs, and the same files with the same torch version)
 """
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -40,9 +41,11 @@ import onnx
 import onnxruntime as ort
 import torch
 from torch import nn
-import torch.nn.functional as F
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "train"))
+import models  # noqa: E402  (train/models.py)
+
 OUT = ROOT / "tests" / "fixtures" / "opsets"
 POINTS = 64
 SEED = 1118
@@ -80,41 +83,15 @@ MATRIX = [
 ]
 
 
-def block(conv, cin, cout):
-    layer = (nn.Conv1d(cin, cout, 1, bias=False) if conv else nn.Linear(cin, cout, bias=False))
-    return layer, nn.BatchNorm1d(cout), nn.LeakyReLU(0.01)
-
-
-class PointNetSimDR(nn.Module):
-    def __init__(self, widths, joints, width, height, fc_bias=False):
-        super().__init__()
-        a, b, c, d, e, fc, head = widths
-        self.joints, self.head_dim = joints, head
-        self.conv1 = nn.Sequential(*block(True, 5, a))
-        self.conv2 = nn.Sequential(*block(True, a, b))
-        self.conv3 = nn.Sequential(*block(True, b, c))
-        self.conv4 = nn.Sequential(*block(True, c, d))
-        self.conv5 = nn.Sequential(*block(True, a + b + c + d, e))
-        self.out1 = nn.Sequential(*block(False, 2 * e, fc))
-        self.out2 = nn.Sequential(*block(False, fc, joints * head))
-        if fc_bias:
-            for seq, cin, cout in [(self.out1, 2 * e, fc), (self.out2, fc, joints * head)]:
-                seq[0] = nn.Linear(cin, cout, bias=True)
-        self.head_x = nn.Linear(head, width)
-        self.head_y = nn.Linear(head, height)
-
-    def forward(self, x):
-        batch = x.size(0)
-        x1 = self.conv1(x)
-        x2 = self.conv2(x1)
-        x3 = self.conv3(x2)
-        x4 = self.conv4(x3)
-        x5 = self.conv5(torch.cat((x1, x2, x3, x4), dim=1))
-        mx = F.adaptive_max_pool1d(x5, 1).view(batch, -1)
-        mean = F.adaptive_avg_pool1d(x5, 1).view(batch, -1)
-        f = self.out2(self.out1(torch.cat((mx, mean), dim=1)))
-        f = f.view(batch, self.joints, self.head_dim)
-        return self.head_x(f), self.head_y(f)
+def pointnet(widths, joints, width, height, fc_bias=False):
+    """train/models.py's PointNet (the one definition of the family), optionally with biased
+    fully connected layers."""
+    model = models.PointNet(widths, joints=joints, width=width, height=height)
+    if fc_bias:
+        e, fc, head = widths[4:]
+        for seq, cin, cout in [(model.head.out1, 2 * e, fc), (model.head.out2, fc, joints * head)]:
+            seq[0] = nn.Linear(cin, cout, bias=True)
+    return model
 
 
 def randomize(model, gen):
@@ -171,7 +148,7 @@ def main():
         widths = WIDTHS[wname]
         name = f"pn-o{opset}-{'dynamic' if dynamic else 'fixed'}-j{j}"
         gen = torch.Generator().manual_seed(SEED + i)
-        model = randomize(PointNetSimDR(widths, j, width, height, fc_bias), gen)
+        model = randomize(pointnet(widths, j, width, height, fc_bias), gen)
         path = OUT / f"{name}.onnx"
         export(model, path, opset, dynamic)
         m = onnx.load(str(path))

@@ -1,0 +1,111 @@
+"""Reading the arrays `evpose dataset` writes, SimDR labels, the loss and the metric."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+#: SimDR label width (pixels), the paper's.
+SIGMA = 8.0
+
+#: DHP19's joint order mirrored left <-> right (head, shoulders, elbows, hips, hands, knees, feet).
+MIRROR = [0, 2, 1, 4, 3, 6, 5, 8, 7, 10, 9, 12, 11]
+
+
+class Dataset:
+    """An `evpose dataset` directory in memory: `points (S, N, 5)`, `label2d (S, J, 2)`,
+    `mask (S, J)`, `camera (S,)` and the manifest."""
+
+    def __init__(self, path, limit=None):
+        path = Path(path)
+        self.manifest = json.loads((path / "manifest.json").read_text())
+        load = lambda name: np.load(path / name, mmap_mode="r")
+        n = len(load("camera.npy")) if limit is None else min(limit, len(load("camera.npy")))
+        self.points = torch.from_numpy(np.array(load("points.npy")[:n]))
+        self.label2d = torch.from_numpy(np.array(load("label2d.npy")[:n]))
+        self.mask = torch.from_numpy(np.array(load("mask.npy")[:n])).float()
+        self.camera = np.asarray(load("camera.npy")[:n])
+
+    @staticmethod
+    def concat(parts):
+        """One dataset of several (same point count)."""
+        if len(parts) == 1:
+            return parts[0]
+        out = object.__new__(Dataset)
+        out.manifest = parts[0].manifest
+        out.points = torch.cat([p.points for p in parts])
+        out.label2d = torch.cat([p.label2d for p in parts])
+        out.mask = torch.cat([p.mask for p in parts])
+        out.camera = np.concatenate([p.camera for p in parts])
+        return out
+
+    def __len__(self):
+        return len(self.camera)
+
+    def batch(self, idx, points=None, generator=None, shift=0, flip=False,
+              size=(346, 260)):
+        """Inputs `(B, 5, points)` and labels of rows `idx`. With fewer `points` than stored, a
+        random subset per sample (the stored rows are already a uniform sample of the window,
+        so a subset of them is one too).
+
+        Augmentation (training): `shift` moves each sample's points and labels by whole pixels
+        drawn from [-shift, shift] per axis (joints that leave the sensor get weight 0);
+        `flip` mirrors half the samples left-right (x -> W-1-x) and swaps the left and right
+        joints, so that a left-arm movement teaches the right arm too."""
+        x = self.points[idx]
+        lab, mask = self.label2d[idx].clone(), self.mask[idx].clone()
+        if points is not None and points < x.size(1):
+            order = torch.rand(x.size(0), x.size(1), generator=generator).argsort(dim=1)
+            pick = order[:, :points].sort(dim=1)[0]
+            x = torch.gather(x, 1, pick.unsqueeze(-1).expand(-1, -1, 5))
+        else:
+            x = x.clone()
+        b = x.size(0)
+        if flip:
+            m = torch.rand(b, generator=generator) < 0.5
+            x[m, :, 0] = (size[0] - 1) - x[m, :, 0]
+            lab[m, :, 0] = (size[0] - 1) - lab[m, :, 0]
+            lab[m] = lab[m][:, MIRROR]
+            mask[m] = mask[m][:, MIRROR]
+        if shift:
+            d = torch.randint(-shift, shift + 1, (b, 1, 2), generator=generator).float()
+            x[:, :, :2] += d
+            lab += d
+            inside = ((lab[..., 0] >= 0) & (lab[..., 0] < size[0]) & (lab[..., 1] >= 0)
+                      & (lab[..., 1] < size[1]))
+            mask = mask * inside.float()
+        return x.transpose(1, 2).contiguous(), lab, mask
+
+
+def simdr_target(coord, size, sigma=SIGMA):
+    """Gaussian labels `(..., size)` centred on integer pixel `coord` `(...)`, min-max
+    normalized to [0, 1] per vector (the paper's SimDR labels)."""
+    grid = torch.arange(size, dtype=torch.float32)
+    g = torch.exp(-((grid - coord.unsqueeze(-1)) ** 2) / (2 * sigma**2))
+    lo = g.min(dim=-1, keepdim=True)[0]
+    hi = g.max(dim=-1, keepdim=True)[0]
+    return (g - lo) / (hi - lo).clamp_min(1e-12)
+
+
+def simdr_loss(logits_x, logits_y, label2d, mask):
+    """KL divergence between the softmax of each SimDR vector and its label, averaged over the
+    bins, weighted by visibility and averaged over joints and samples."""
+    total = 0.0
+    for logits, axis in ((logits_x, 0), (logits_y, 1)):
+        t = simdr_target(label2d[..., axis], logits.size(-1))
+        logp = torch.log_softmax(logits, dim=-1)
+        kl = (torch.xlogy(t, t) - t * logp).mean(dim=-1)
+        total = total + (kl * mask).mean()
+    return total
+
+
+def decode(logits_x, logits_y):
+    """Argmax decoding `(B, J, 2)` (first index wins ties, like `evpose`)."""
+    return torch.stack((logits_x.argmax(dim=-1), logits_y.argmax(dim=-1)), dim=-1).float()
+
+
+def mpjpe2d(pred, label2d, mask):
+    """Sum of visible joints' pixel errors and their count."""
+    err = ((pred - label2d) ** 2).sum(dim=-1).sqrt()
+    return float((err * mask).sum()), float(mask.sum())

@@ -1,0 +1,90 @@
+#!/usr/bin/env bash
+# The recipe of the shipped models (models/): synthetic data, training, quantization, evaluation.
+# Every step is seeded; the figures in README's "Trained models" come from this script.
+#
+# Usage: bash train/recipe.sh WORKDIR [STEP...]
+#   steps: data mcu paper sweep dgcnn point-transformer quantize eval (default: all, in order)
+# Needs: a release `evpose` (built here if absent), and train/requirements.txt installed
+# (python: $PYTHON, default python3). WORKDIR holds ~2.5 GB of recordings and datasets.
+# On the 2-core development VM (AMD EPYC, no GPU), measured: data 11 min (6 + 12 subjects,
+# 612 recordings, 43,909 training samples), mcu 12 min, paper ~60 min, sweep 10 min, dgcnn and
+# point-transformer ~12 min each (their step budgets).
+set -euo pipefail
+repo=$(cd "$(dirname "$0")/.." && pwd)
+work=${1:?usage: train/recipe.sh WORKDIR [STEP...]}
+shift
+steps=${*:-data mcu paper sweep dgcnn point-transformer quantize eval}
+py=${PYTHON:-python3}
+evpose=$repo/target/release/evpose
+[ -x "$evpose" ] || (cd "$repo" && cargo build --release --bin evpose)
+mkdir -p "$work"
+cd "$work"
+# Both training sets, mirrored and shifted (up to 16 px) at random.
+train() {
+  "$py" "$repo/train/train.py" --data ds-train ds-train2 --val ds-val --flip --shift 16 \
+    --quiet "$@"
+}
+
+# Points per input of each model (its test set: ds-test-N).
+test_set() { case $1 in paper) echo 2048 ;; mcu-w8-n512) echo 512 ;; mcu-w16-n128) echo 128 ;; *) echo 256 ;; esac; }
+
+for step in $steps; do
+  echo "== $step"
+  case $step in
+  data)
+    # Train: 6 subjects (seed 1) + 12 (seed 2); validation: 1 subject, 1 s (seed 500); test:
+    # 1 subject (seed 1000), every movement for 2 s, the held-out set of every README figure.
+    "$evpose" sim --out rec-train --seed 1 --subjects 6 --seconds 2 --movements all --split train
+    "$evpose" sim --out rec-train2 --seed 2 --subjects 12 --seconds 2 --movements all --split train
+    "$evpose" sim --out rec-val --seed 500 --subjects 1 --seconds 1 --movements all --split test
+    "$evpose" sim --out rec-test --seed 1000 --subjects 1 --seconds 2 --movements all --split test
+    "$evpose" dataset --recordings rec-train --out ds-train --split train
+    "$evpose" dataset --recordings rec-train2 --out ds-train2 --split train
+    "$evpose" dataset --recordings rec-val --out ds-val --split test
+    for n in 2048 512 256 128; do
+      "$evpose" dataset --recordings rec-test --out ds-test-$n --points $n --split test
+    done
+    ;;
+  mcu)
+    train --widths 16 16 32 64 128 128 32 --points 256 --epochs 12 --batch 32 --lr 1e-3 \
+      --lr-steps 8 10 --out mcu.onnx --log mcu.json
+    ;;
+  paper)
+    # Trained on 512 of the 2,048 stored points per sample (4x cheaper), exported at 2,048.
+    train --widths 64 64 128 256 1024 1024 128 --points 512 --export-points 2048 --epochs 3 \
+      --batch 16 --lr 5e-4 --lr-steps 2 --out paper.onnx --log paper.json
+    ;;
+  sweep)
+    # The accuracy/latency trade-off: narrower at more points, the same at fewer.
+    train --widths 8 8 16 32 64 64 32 --points 512 --epochs 6 --batch 32 --lr 1e-3 \
+      --lr-steps 4 5 --out mcu-w8-n512.onnx --log mcu-w8-n512.json
+    train --widths 16 16 32 64 128 128 32 --points 128 --epochs 6 --batch 32 --lr 1e-3 \
+      --lr-steps 4 5 --out mcu-w16-n128.onnx --log mcu-w16-n128.json
+    ;;
+  dgcnn | point-transformer)
+    # What two CPU cores allow: ~12 minutes each (1,300 and 430 steps of 16 samples).
+    steps=1300
+    [ "$step" = point-transformer ] && steps=430
+    train --backbone "$step" --widths 32 32 64 128 512 512 64 --k 16 --points 256 --epochs 1 \
+      --steps $steps --batch 16 --lr 1e-3 --lr-steps --out "$step.onnx" --log "$step.json"
+    ;;
+  quantize)
+    for m in mcu paper mcu-w8-n512 mcu-w16-n128; do
+      [ -f $m.onnx ] || continue
+      n=$(test_set $m)
+      "$evpose" quantize --model $m.onnx --calib ds-train --max-windows 256 --points $n --out $m.evq \
+        --onnx-out $m.q.onnx
+    done
+    ;;
+  eval)
+    for m in mcu paper mcu-w8-n512 mcu-w16-n128 dgcnn point-transformer; do
+      [ -f $m.onnx ] || continue
+      n=$(test_set $m)
+      "$evpose" eval --data ds-test-$n --model $m.onnx --engine tract --json eval-$m-tract.json
+      [ -f $m.evq ] && "$evpose" eval --data ds-test-$n --model $m.evq --engine i8 --json eval-$m-i8.json
+    done
+    "$evpose" eval --data ds-test-2048 --baseline ds-train --json eval-baseline.json
+    ;;
+  *) echo "unknown step $step" >&2; exit 2 ;;
+  esac
+done

@@ -1,0 +1,112 @@
+"""`train/`'s own tests (pytest; needs torch, onnxruntime): each backbone trains for a few steps
+on a tiny dataset in `evpose dataset`'s layout and its ONNX export matches PyTorch."""
+
+import json
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+
+import data
+import models
+import train
+
+TINY = {
+    "pointnet": ["--widths", "8", "8", "16", "16", "32", "32", "8"],
+    "dgcnn": ["--widths", "8", "8", "16", "16", "32", "32", "8", "--k", "4"],
+    "point-transformer": ["--widths", "8", "8", "16", "16", "32", "32", "8", "--k", "4"],
+}
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """24 samples of 64 points in the layout `evpose dataset` writes (random clouds, labels)."""
+    d = tmp_path_factory.mktemp("ds")
+    rng = np.random.default_rng(7)
+    s, n, j = 24, 64, models.JOINTS
+    pts = np.stack([rng.integers(0, 346, (s, n)), rng.integers(0, 260, (s, n)),
+                    rng.random((s, n)), rng.integers(-2, 3, (s, n)),
+                    rng.integers(1, 4, (s, n))], axis=-1).astype(np.float32)
+    np.save(d / "points.npy", pts)
+    lab = np.stack([rng.integers(0, 346, (s, j)), rng.integers(0, 260, (s, j))], -1)
+    np.save(d / "label2d.npy", lab.astype(np.float32))
+    mask = np.ones((s, j), np.uint8)
+    mask[0, 3] = 0
+    np.save(d / "mask.npy", mask)
+    np.save(d / "camera.npy", np.full(s, 2, np.uint8))
+    (d / "manifest.json").write_text(json.dumps({"points": n, "samples": s}))
+    return d
+
+
+def test_simdr_target_is_the_papers_label():
+    t = data.simdr_target(torch.tensor([100.0]), 346)[0]
+    assert int(t.argmax()) == 100 and float(t.max()) == 1.0 and float(t.min()) == 0.0
+    assert abs(float(t[108]) - np.exp(-0.5)) < 1e-6  # one sigma away
+
+
+def test_loss_ignores_masked_joints():
+    lx, ly = torch.randn(1, 13, 346), torch.randn(1, 13, 260)
+    lab = torch.full((1, 13, 2), 50.0)
+    mask = torch.ones(1, 13)
+    base = data.simdr_loss(lx, ly, lab, mask)
+    lab2 = lab.clone()
+    lab2[0, 5] = 200.0
+    mask[0, 5] = 0
+    assert torch.isclose(data.simdr_loss(lx, ly, lab2, mask),
+                         data.simdr_loss(lx, ly, lab, mask))
+    assert not torch.isclose(base, data.simdr_loss(lx, ly, lab2, torch.ones(1, 13)))
+
+
+@pytest.mark.parametrize("backbone", sorted(TINY))
+def test_backbone_trains_and_exports(backbone, tiny, tmp_path):
+    out = tmp_path / f"{backbone}.onnx"
+    args = train.parse(["--data", str(tiny), "--val", str(tiny), "--backbone", backbone,
+                        "--points", "32", "--epochs", "3", "--batch", "8", "--lr", "3e-3",
+                        "--lr-steps", "--out", str(out), "--quiet",
+                        "--log", str(tmp_path / "log.json")] + TINY[backbone])
+    model, log = train.train(args)
+    assert len(log) == 3 and all(np.isfinite(e["loss"]) for e in log)
+    assert log[-1]["loss"] < log[0]["loss"], log  # it learns something on 24 samples
+    # The export matches PyTorch (float32 graph, different kernels: 1e-4 relative).
+    x = data.Dataset(tiny).batch(torch.arange(1), 32)[0]
+    with torch.no_grad():
+        tx, ty = model.eval()(x)
+    sess = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    ox, oy = sess.run(["simdr_x", "simdr_y"], {"points": x.numpy()})
+    assert ox.shape == (1, 13, 346) and oy.shape == (1, 13, 260)
+    np.testing.assert_allclose(ox, tx.numpy(), rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(oy, ty.numpy(), rtol=1e-4, atol=1e-4)
+    assert out.with_suffix(".pt").exists()
+
+
+def test_augmentation_moves_points_and_labels_together(tmp_path):
+    """Each joint's label sits on a point of its own; after shifts and flips it still does,
+    and a flip puts the right shoulder where the mirrored left one was."""
+    s, j = 8, models.JOINTS
+    rng = np.random.default_rng(3)
+    lab = np.stack([rng.integers(30, 316, (s, j)), rng.integers(30, 230, (s, j))], -1)
+    pts = np.zeros((s, j, 5), np.float32)
+    pts[..., :2] = lab
+    pts[..., 2] = np.arange(j) / j  # t_avg tags the joint each point was made for
+    np.save(tmp_path / "points.npy", pts)
+    np.save(tmp_path / "label2d.npy", lab.astype(np.float32))
+    np.save(tmp_path / "mask.npy", np.ones((s, j), np.uint8))
+    np.save(tmp_path / "camera.npy", np.full(s, 2, np.uint8))
+    (tmp_path / "manifest.json").write_text(json.dumps({"points": j, "samples": s}))
+    ds = data.Dataset(tmp_path)
+    gen = torch.Generator().manual_seed(0)
+    flipped = 0
+    for _ in range(4):
+        x, l2, mask = ds.batch(torch.arange(s), None, gen, shift=20, flip=True)
+        for b in range(s):
+            for k in range(j):
+                if mask[b, k] == 0:
+                    continue
+                # the point carrying this label's position
+                hit = ((x[b, 0] == l2[b, k, 0]) & (x[b, 1] == l2[b, k, 1])).nonzero()
+                assert len(hit) >= 1, (b, k)
+                tag = int(round(float(x[b, 2, hit[0, 0]]) * j))
+                assert tag in (k, data.MIRROR[k])
+                flipped += tag != k
+    assert flipped > 0  # some samples were mirrored

@@ -1,0 +1,148 @@
+#!/usr/bin/env python3
+"""Trains a backbone on an `evpose dataset` and exports it to ONNX for `evpose`.
+
+    python train/train.py --data ds-train --val ds-val --backbone pointnet \
+        --widths 64 64 128 256 1024 1024 128 --points 2048 --epochs 30 --out paper.onnx
+
+The paper's setup is the default: SimDR labels (sigma 8), KL divergence weighted by visibility,
+Adam at 1e-4 with x0.1 steps at epochs 15 and 20 (of 30), batch 16, dropout 0.1. Seeded (torch
+and the sampler); logs the loss and the validation MPJPE2D per epoch (stdout and `--log`), with a
+progress bar per epoch. `--minutes` stops cleanly after a wall-clock budget (the last finished
+epoch is exported). The export uses PyTorch's TorchScript exporter (`dynamo=False`) with a fixed
+point count (`--export-points`, default `--points`): the form `evpose` imports (PointNet) and
+tract runs (every backbone). A checkpoint (`.pt`, state dict + arguments) sits beside the ONNX.
+"""
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+import data
+import models
+
+
+def parse(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--data", required=True, nargs="+", help="training datasets (evpose dataset)")
+    p.add_argument("--val", help="validation dataset (MPJPE2D per epoch)")
+    p.add_argument("--backbone", default="pointnet", choices=sorted(models.BACKBONES))
+    p.add_argument("--widths", type=int, nargs=7, metavar="W",
+                   help="c1 c2 c3 c4 c5 fc head_dim (default: the backbone's paper widths)")
+    p.add_argument("--k", type=int, help="neighbours of the k-NN backbones")
+    p.add_argument("--points", type=int, default=2048, help="points per training input")
+    p.add_argument("--export-points", type=int, help="fixed N of the export (default --points)")
+    p.add_argument("--epochs", type=int, default=30)
+    p.add_argument("--batch", type=int, default=16)
+    p.add_argument("--lr", type=float, default=1e-4)
+    p.add_argument("--lr-steps", type=int, nargs="*", default=None,
+                   help="epochs at which the rate drops x0.1 (default: 1/2 and 2/3 of --epochs)")
+    p.add_argument("--dropout", type=float, default=0.1)
+    p.add_argument("--shift", type=int, default=0,
+                   help="augmentation: random shift of points and labels by up to PX pixels")
+    p.add_argument("--flip", action="store_true",
+                   help="augmentation: mirror half the samples left-right, joints swapped")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--limit", type=int, help="use only the first LIMIT training samples")
+    p.add_argument("--steps", type=int, help="stop after this many optimizer steps in all")
+    p.add_argument("--minutes", type=float, help="stop after the epoch that passes this budget")
+    p.add_argument("--threads", type=int, help="torch CPU threads")
+    p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    p.add_argument("--init", help="start from this checkpoint (.pt)")
+    p.add_argument("--log", help="write the per-epoch log here (JSON)")
+    p.add_argument("--out", required=True, help="ONNX file to write")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p.parse_args(argv)
+
+
+def evaluate(model, ds, points, device, batch=64):
+    """MPJPE2D (px) of `model` on `ds` (inputs cut to `points` with a fixed seed)."""
+    model.eval()
+    gen = torch.Generator().manual_seed(0)
+    total, count = 0.0, 0.0
+    with torch.no_grad():
+        for s in range(0, len(ds), batch):
+            idx = torch.arange(s, min(s + batch, len(ds)))
+            x, lab, mask = ds.batch(idx, points, gen)
+            lx, ly = model(x.to(device))
+            e, n = data.mpjpe2d(data.decode(lx, ly).cpu(), lab, mask)
+            total, count = total + e, count + n
+    return total / max(count, 1.0)
+
+
+def export(model, path, points):
+    """ONNX export in `evpose`'s form: input `points (1, 5, N)`, outputs `simdr_x`, `simdr_y`."""
+    model = model.cpu().eval()
+    torch.onnx.export(model, torch.zeros(1, 5, points), str(path), opset_version=13,
+                      input_names=["points"], output_names=["simdr_x", "simdr_y"],
+                      do_constant_folding=True, dynamo=False)
+
+
+def train(args):
+    torch.manual_seed(args.seed)
+    np.random.seed(args.seed)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    device = torch.device(args.device)
+    ds = data.Dataset.concat([data.Dataset(d, args.limit) for d in args.data])
+    val = data.Dataset(args.val) if args.val else None
+    model = models.build(args.backbone, args.widths, args.k, args.dropout).to(device)
+    if args.init:
+        model.load_state_dict(torch.load(args.init, map_location=device)["state"])
+    params = sum(p.numel() for p in model.parameters())
+    print(f"{args.backbone}: {params / 1e6:.3f} M parameters; {len(ds)} training samples, "
+          f"{args.points} points, device {device}", flush=True)
+    opt = torch.optim.Adam(model.parameters(), lr=args.lr)
+    steps = args.lr_steps if args.lr_steps is not None else [args.epochs // 2,
+                                                             args.epochs * 2 // 3]
+    sched = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=steps, gamma=0.1)
+    gen = torch.Generator().manual_seed(args.seed)
+    log, done, start = [], 0, time.time()
+    per_epoch = math.ceil(len(ds) / args.batch)
+    for epoch in range(args.epochs):
+        model.train()
+        order = torch.randperm(len(ds), generator=gen)
+        bar = tqdm(range(per_epoch), desc=f"epoch {epoch + 1}/{args.epochs}",
+                   disable=args.quiet, leave=False)
+        loss_sum, seen = 0.0, 0
+        for b in bar:
+            idx = order[b * args.batch:(b + 1) * args.batch]
+            if len(idx) < 2:  # BatchNorm needs two samples
+                continue
+            x, lab, mask = ds.batch(idx, args.points, gen, args.shift, args.flip)
+            lx, ly = model(x.to(device))
+            loss = data.simdr_loss(lx, ly, lab.to(device), mask.to(device))
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            loss_sum, seen, done = loss_sum + loss.item(), seen + 1, done + 1
+            bar.set_postfix(loss=f"{loss_sum / seen:.5f}")
+            if args.steps and done >= args.steps:
+                break
+        sched.step()
+        entry = {"epoch": epoch + 1, "loss": loss_sum / max(seen, 1), "steps": done,
+                 "seconds": round(time.time() - start, 1), "lr": opt.param_groups[0]["lr"]}
+        if val is not None:
+            entry["val_mpjpe2d_px"] = evaluate(model, val, args.points, device)
+        log.append(entry)
+        print(json.dumps(entry), flush=True)
+        out = Path(args.out)
+        torch.save({"state": model.state_dict(), "args": vars(args)}, out.with_suffix(".pt"))
+        if args.steps and done >= args.steps:
+            break
+        if args.minutes and time.time() - start > args.minutes * 60:
+            print(f"time budget of {args.minutes} min reached after epoch {epoch + 1}")
+            break
+    export(model, args.out, args.export_points or args.points)
+    if args.log:
+        Path(args.log).write_text(json.dumps({"args": vars(args), "epochs": log}, indent=1))
+    return model, log
+
+
+if __name__ == "__main__":
+    train(parse())
