@@ -133,7 +133,7 @@ fn too_little_scratch_and_no_points_are_errors() {
 #[test]
 fn the_preprocessing_contract_travels_with_the_model() {
     use evpose_core::model::{header, Preprocessing, CRC};
-    // A blob written now (version 2) records what it was given.
+    // A blob written now (version 3) records what it was given.
     let net = model::import_onnx(&fixtures().join("pointnet-small.onnx")).unwrap();
     let input = model::read_points(&fixtures().join("street-00.points.npy")).unwrap();
     let mut q = quantize::quantize(&net, &quantize::calibrate(&net, &[input]).unwrap()).unwrap();
@@ -146,11 +146,19 @@ fn the_preprocessing_contract_travels_with_the_model() {
     let bytes = q.blob().unwrap();
     let blob = AlignedBlob::new(&bytes);
     assert_eq!(Model::parse(blob.bytes()).unwrap().preprocessing(), want);
-    // Version 1 blobs (the bundled default model) still parse, stating nothing.
-    let v1 = evpose_host::assets::default_blob();
+    // Version 1 blobs (the earlier default model, int8 heads without scales) still parse,
+    // stating nothing and giving no confidences.
+    let v1 = AlignedBlob::new(&std::fs::read(fixtures().join("pointnet-small-v1.evq")).unwrap());
     assert_eq!(u16::from_le_bytes([v1.bytes()[4], v1.bytes()[5]]), 1);
     let m = Model::parse(v1.bytes()).unwrap();
     assert_eq!(m.preprocessing(), Preprocessing::default());
+    assert_eq!(m.head_scales(), None);
+    // Version 3: 15-bit heads with their logit scale (positive, one per head).
+    let m3 = Model::parse(blob.bytes()).unwrap();
+    let [sx, sy] = m3.head_scales().unwrap();
+    assert!(sx > 0.0 && sy > 0.0);
+    let hx = m3.layer(m3.head_x_index());
+    assert!(matches!(hx.weights, evpose_core::model::Weights::I16(_)));
     // More time slices than the rasterizer has, or a non-zero reserved byte, are errors (the
     // CRC recomputed, so that the field is what fails).
     let reseal = |mut b: Vec<u8>| {
@@ -169,6 +177,13 @@ fn the_preprocessing_contract_travels_with_the_model() {
     assert!(matches!(
         Model::parse(reseal(bad).bytes()),
         Err(ModelError::Header(_))
+    ));
+    // Version 2 had no i16 heads and no head scales: the same bytes labelled 2 are corrupt.
+    let mut bad = bytes.clone();
+    bad[header::VERSION] = 2;
+    assert!(matches!(
+        Model::parse(reseal(bad).bytes()),
+        Err(ModelError::Layer { .. })
     ));
     // A version 1 blob with preprocessing fields is corrupt.
     let mut bad = bytes;

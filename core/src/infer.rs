@@ -251,7 +251,10 @@ impl<'m> Plan<'m> {
             let l = model.layer(i);
             let fits = match (model.dtype(), l.weights, l.bias) {
                 (DType::F32, Weights::F32(_), Bias::F32(_)) => true,
-                (DType::I8, Weights::I16(_), Bias::I32(_)) => i < model.point_layer_count(),
+                // i16: the first point layer, and 15-bit heads (blob version 3).
+                (DType::I8, Weights::I16(_), Bias::I32(_)) => {
+                    i < model.point_layer_count() || i >= model.head_x_index()
+                }
                 (DType::I8, Weights::I8(_), Bias::I32(_)) => true,
                 _ => false,
             };
@@ -564,10 +567,23 @@ impl<'m> Plan<'m> {
             Ok(())
         })?;
         heads(m, feats, out_x, out_y, |l, f, dst| {
-            let (Weights::I8(w), Bias::I32(bias)) = (l.weights, l.bias) else {
+            let Bias::I32(bias) = l.bias else {
                 return Err(InferError::DType);
             };
-            k.matvec_i8(w, f, bias, dst);
+            match l.weights {
+                Weights::I8(w) => k.matvec_i8(w, f, bias, dst),
+                // 15-bit weights (blob version 3): the int8 features widened to i16 (the
+                // parser bounds D by MAX_I16_HEAD_DIM, so the sums are exact in i32).
+                Weights::I16(w) => {
+                    let mut wide = [0i16; quant::MAX_I16_HEAD_DIM];
+                    let wide = &mut wide[..f.len().min(quant::MAX_I16_HEAD_DIM)];
+                    for (d, &v) in wide.iter_mut().zip(f) {
+                        *d = i16::from(v);
+                    }
+                    k.matvec_i16(w, wide, bias, dst);
+                }
+                Weights::F32(_) => return Err(InferError::DType),
+            }
             Ok(())
         })
     }

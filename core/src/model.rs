@@ -24,7 +24,8 @@
 //!       bit i = point layer i − 1)   16 weights offset   20 bias offset   24 scales offset
 //!       (0: none)   28 LeakyReLU alpha f32
 //! data: arrays at 16-byte-aligned offsets: weights `[out][in]`, bias `[out]` (f32 or i32),
-//!       scales `[out]` f32 (int8 requantization multipliers)
+//!       scales `[out]` f32 (int8 requantization multipliers; on int8 heads, version 3, the
+//!       dequantization multipliers: logit = accumulator × scale)
 //! ```
 //! [`Model::parse`] checks the magic, version, checksum, every offset, size and alignment, and
 //! that the dimensions chain; after that, reading the model cannot fail. The offsets are named
@@ -32,7 +33,9 @@
 //!
 //! Bytes 48–56 carry the preprocessing the model was trained for ([`Preprocessing`]: points per
 //! input, events per window, time slices), so the contract travels with the weights. Version 1
-//! blobs (before these fields) still parse, with the fields unstated.
+//! blobs (before these fields) still parse, with the fields unstated. Version 3 lets int8 heads
+//! carry the scale of their logits ([`Model::head_scales`]), which joint confidences need;
+//! version 1 and 2 blobs parse without it.
 
 use core::fmt;
 
@@ -121,8 +124,9 @@ pub struct Preprocessing {
 
 /// First bytes of a blob.
 pub const MAGIC: [u8; 4] = *b"EVPQ";
-/// Format version this crate writes (2: with [`Preprocessing`]); it reads versions 1 and 2.
-pub const VERSION: u16 = 2;
+/// Format version this crate writes (2: with [`Preprocessing`]; 3: int8 heads may carry
+/// their logit scale); it reads versions 1 to 3.
+pub const VERSION: u16 = 3;
 /// Size of the fixed header.
 pub const HEADER_LEN: usize = 64;
 /// Size of one layer-table entry.
@@ -303,6 +307,7 @@ pub struct Layer<'a> {
 #[derive(Clone, Copy, Debug)]
 pub struct Model<'a> {
     blob: &'a [u8],
+    version: u16,
     dtype: DType,
     layers: [Option<LayerDesc>; MAX_LAYERS],
     layer_count: usize,
@@ -375,6 +380,7 @@ impl<'a> Model<'a> {
         }
         let mut m = Self {
             blob,
+            version,
             dtype,
             layers: [None; MAX_LAYERS],
             layer_count: usize::from(u16_at(blob, h::LAYERS)),
@@ -469,9 +475,13 @@ impl<'a> Model<'a> {
             2 => WeightType::I16,
             _ => return Err(err("unknown weight type")),
         };
+        let head = matches!(kind, LayerKind::HeadX | LayerKind::HeadY);
         let allowed = match (self.dtype, kind) {
             (DType::F32, _) => weight_type == WeightType::F32,
             (DType::I8, LayerKind::Point) => weight_type != WeightType::F32,
+            // Version 3: int8 heads may keep 15-bit weights (the heads are ~0.1 % of the MACs
+            // and the argmax is sensitive to their rounding).
+            (DType::I8, _) if head && self.version >= 3 => weight_type != WeightType::F32,
             (DType::I8, _) => weight_type == WeightType::I8,
         };
         if !allowed {
@@ -500,13 +510,24 @@ impl<'a> Model<'a> {
         let n_w = d.in_dim as usize * d.out_dim as usize;
         self.check_array(d.weights, n_w * weight_type.size(), i)?;
         self.check_array(d.bias, d.out_dim as usize * 4, i)?;
-        let wants_scales =
-            self.dtype == DType::I8 && matches!(kind, LayerKind::Point | LayerKind::Fc);
+        let int8 = self.dtype == DType::I8;
+        let wants_scales = int8 && matches!(kind, LayerKind::Point | LayerKind::Fc);
+        let head_scales = int8 && self.version >= 3 && !wants_scales;
         match (wants_scales, d.scales) {
             (true, 0) => return Err(err("int8 layer without requantization scales")),
             (true, off) => self.check_array(off, d.out_dim as usize * 4, i)?,
             (false, 0) => {}
+            (false, off) if head_scales => {
+                self.check_array(off, d.out_dim as usize * 4, i)?;
+                let first = f32::from_bits(u32_at(self.blob, off as usize));
+                if !(first.is_finite() && first > 0.0) {
+                    return Err(err("head logit scale must be positive"));
+                }
+            }
             (false, _) => return Err(err("scales on a layer that takes none")),
+        }
+        if head && weight_type == WeightType::I16 {
+            self.check_i16_head(&d, i)?;
         }
         if kind == LayerKind::Point {
             self.check_sources(&d, i)?;
@@ -519,6 +540,33 @@ impl<'a> Model<'a> {
             return Err(err("only point layers have sources"));
         }
         Ok(d)
+    }
+
+    /// An i16 head's accumulators must stay exact in i32: `D ≤ MAX_I16_HEAD_DIM`, weights within
+    /// `±HEAD_WEIGHT_LIMIT`, biases within `±HEAD_BIAS_LIMIT` (arrays already bounds-checked).
+    fn check_i16_head(&self, d: &LayerDesc, i: usize) -> Result<(), ModelError> {
+        use crate::quant::{HEAD_BIAS_LIMIT, HEAD_WEIGHT_LIMIT, MAX_I16_HEAD_DIM};
+        let err = |reason| ModelError::Layer {
+            index: i as u8,
+            reason,
+        };
+        if d.in_dim as usize > MAX_I16_HEAD_DIM {
+            return Err(err("i16 heads take at most 256 inputs"));
+        }
+        let n = d.in_dim as usize * d.out_dim as usize;
+        let w = &self.blob[d.weights as usize..][..2 * n];
+        if w.chunks_exact(2)
+            .any(|b| i16::from_le_bytes([b[0], b[1]]).unsigned_abs() > HEAD_WEIGHT_LIMIT as u16)
+        {
+            return Err(err("i16 head weight beyond the 15-bit limit"));
+        }
+        let b = &self.blob[d.bias as usize..][..4 * d.out_dim as usize];
+        if b.chunks_exact(4).any(|b| {
+            i32::from_le_bytes([b[0], b[1], b[2], b[3]]).unsigned_abs() > HEAD_BIAS_LIMIT as u32
+        }) {
+            return Err(err("i16 head bias beyond its limit"));
+        }
+        Ok(())
     }
 
     fn check_array(&self, offset: u32, bytes: usize, i: usize) -> Result<(), ModelError> {
@@ -656,6 +704,15 @@ impl<'a> Model<'a> {
         self.preprocessing
     }
 
+    /// Points per network input: the `N` the blob records, else the paper's
+    /// [`DEFAULT_POINTS`](crate::pipeline::DEFAULT_POINTS).
+    pub fn input_points(&self) -> usize {
+        match self.preprocessing.points {
+            0 => crate::pipeline::DEFAULT_POINTS,
+            n => n as usize,
+        }
+    }
+
     /// Number format.
     pub fn dtype(&self) -> DType {
         self.dtype
@@ -699,6 +756,20 @@ impl<'a> Model<'a> {
     /// int8 input coding exponents per feature.
     pub fn input_shifts(&self) -> [u8; FEATURES] {
         self.input_shifts
+    }
+    /// The factor from head outputs to logits, `[x, y]`: 1 for an f32 model; for an int8
+    /// model, the heads' dequantization multipliers (blob version 3: `logit = accumulator ×
+    /// scale`, one scale per head), or `None` when the blob does not carry them.
+    pub fn head_scales(&self) -> Option<[f32; 2]> {
+        if self.dtype == DType::F32 {
+            return Some([1.0; 2]);
+        }
+        let hx = self.head_x_index();
+        let first = |i: usize| match self.layer(i).scales {
+            [s, ..] => Some(*s),
+            [] => None,
+        };
+        Some([first(hx)?, first(hx + 1)?])
     }
     /// int8 average-pool constant `c` (see [`crate::quant::average`]).
     pub fn avg_scale(&self) -> f32 {

@@ -94,6 +94,15 @@ pub const FIRST_WEIGHT_LIMIT: i16 = 1023;
 /// Largest magnitude of a first-layer bias, so that the sum stays below 2^24.
 pub const FIRST_BIAS_LIMIT: i32 = (1 << 24) - 5 * 2048 * 1023 - 1;
 
+/// Largest magnitude of an i16 head weight (blob version 3): 15 bits, so that the ONNX twin can
+/// split each weight into two int8 halves (`w = 128·hi + lo`, `lo` in 0..=127).
+pub const HEAD_WEIGHT_LIMIT: i16 = 16383;
+/// Largest magnitude of an i16 head's bias: with [`MAX_I16_HEAD_DIM`] inputs of at most 128 in
+/// magnitude, `256 × 16383 × 128 + 2^30 < 2^31`, so the i32 accumulators are exact.
+pub const HEAD_BIAS_LIMIT: i32 = 1 << 30;
+/// Largest head dim `D` of an i16 head.
+pub const MAX_I16_HEAD_DIM: usize = 256;
+
 /// Integer coding of the five point features for the first layer: `q = round(f × 2^shift)`,
 /// saturated to `±INPUT_LIMIT`. Multiplying by a power of two is exact in f32, so the only
 /// rounding is the final round-half-even; in ONNX: `Mul`, `Round` (half to even), `Clip`.

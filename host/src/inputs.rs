@@ -1,8 +1,9 @@
 //! Network inputs from files, for calibration, parity checks and benchmarks: (N, 5) point
 //! clouds are sampled as they are; event recordings are cut into windows, rasterized and sampled
-//! with the core's code (the preprocessing the firmware runs).
+//! with the core's code (the preprocessing the firmware runs); an `evpose dataset` directory
+//! gives samples spread evenly over it.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{ensure, Context, Result};
 use evpose_core::raster::DEFAULT_SLICES;
@@ -46,8 +47,9 @@ impl Sampling {
     }
 }
 
-/// Inputs from files: each an (N, 5) point cloud or an event recording (full windows only,
-/// at most `max_windows` per file).
+/// Inputs from files: each an (N, 5) point cloud, an `evpose dataset` directory (at most
+/// `max_windows` samples, evenly spaced over it) or an event recording (full windows only, at
+/// most `max_windows` per file).
 pub fn load(
     files: &[PathBuf],
     s: &Sampling,
@@ -57,6 +59,10 @@ pub fn load(
     let mut rng = rng_from_seed(s.seed);
     let mut out = Vec::new();
     for f in files {
+        if f.join("manifest.json").is_file() {
+            out.extend(from_dataset(f, s.max_windows, n, &mut rng)?);
+            continue;
+        }
         if let Ok(points) = model::read_points(f) {
             out.push(sample_cloud(&points, n, &mut rng)?);
             continue;
@@ -73,6 +79,25 @@ pub fn load(
         );
     }
     ensure!(!out.is_empty(), "no input windows in {files:?}");
+    Ok(out)
+}
+
+/// Up to `max` samples of the dataset in `dir`, evenly spaced over it (so that every movement
+/// and camera of a sorted dataset is represented), each sampled to `n` points.
+pub fn from_dataset(
+    dir: &Path,
+    max: usize,
+    n: usize,
+    rng: &mut SampleRng,
+) -> Result<Vec<Vec<[f32; 5]>>> {
+    let ds = crate::dataset::Dataset::open(dir)?;
+    let take = max.min(ds.len());
+    let mut out = Vec::with_capacity(take);
+    for i in 0..take {
+        let row = i * ds.len() / take;
+        let cloud = ds.points_range(row, 1)?;
+        out.push(sample_cloud(&cloud[0], n, rng)?);
+    }
     Ok(out)
 }
 

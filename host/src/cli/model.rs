@@ -54,8 +54,8 @@ pub struct QuantizeArgs {
     /// The float model, a PyTorch ONNX export of the paper's family.
     #[arg(long)]
     pub model: PathBuf,
-    /// Calibration data: event recordings (cut into windows, rasterized and sampled) or (N, 5)
-    /// point clouds.
+    /// Calibration data: event recordings (cut into windows, rasterized and sampled), (N, 5)
+    /// point clouds or `evpose dataset` directories (`--max-windows` samples spread over each).
     #[arg(long, num_args = 1.., required = true)]
     pub calib: Vec<PathBuf>,
     /// Output int8 blob for the core.
@@ -64,9 +64,23 @@ pub struct QuantizeArgs {
     /// Output ONNX graph of the same integer computation (for an independent engine).
     #[arg(long)]
     pub onnx_out: Option<PathBuf>,
+    /// Activation scales of the first point layer: one per channel (better for wide models
+    /// whose conv1 channels differ in range: the paper-width model) or one for the layer (the
+    /// narrow MCU model does better so).
+    #[arg(long, value_enum, default_value_t = FirstLayerScales::Tensor)]
+    pub first_layer_scales: FirstLayerScales,
     /// How inputs are sampled.
     #[command(flatten)]
     pub sampling: SamplingArgs,
+}
+
+/// `--first-layer-scales`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum FirstLayerScales {
+    /// One activation scale for the layer.
+    Tensor,
+    /// One activation scale per output channel.
+    Channel,
 }
 
 /// How event files become network inputs.
@@ -84,7 +98,7 @@ pub struct SamplingArgs {
     /// Seed of the point sampler.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// At most this many windows per file.
+    /// At most this many windows per file (samples per dataset directory).
     #[arg(long, default_value_t = 16)]
     pub max_windows: usize,
 }
@@ -192,7 +206,10 @@ pub fn quantize(a: &QuantizeArgs) -> Result<()> {
     let net = model::import_onnx(&a.model)?;
     let inputs = inputs::load(&a.calib, &a.sampling.sampling(), net.points)?;
     let bar = spinner(format!("calibrating on {} windows", inputs.len()));
-    let ranges = quantize::calibrate(&net, &inputs)?;
+    let mut ranges = quantize::calibrate(&net, &inputs)?;
+    if a.first_layer_scales == FirstLayerScales::Tensor {
+        ranges.per_tensor_first_layer();
+    }
     bar.finish_and_clear();
     let mut q = quantize::quantize(&net, &ranges)?;
     // The preprocessing the calibration windows had travels with the model.

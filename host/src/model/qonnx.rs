@@ -307,13 +307,38 @@ pub fn build(q: &QuantNet) -> Result<Vec<u8>> {
     // Heads: int32 accumulators are the outputs.
     let mut outputs = Vec::new();
     for (l, name) in q.layers[heads..].iter().zip(["simdr_x", "simdr_y"]) {
-        let wn = g.i8s(
-            "w",
-            &[l.in_dim, l.out_dim],
-            &transpose(i8_weights(l), l.out_dim, l.in_dim),
-        );
         let bn = g.i32s("b", &[l.out_dim], &l.b);
-        let acc = g.node("MatMulInteger", "head_acc", &[&joints, &wn], &[]);
+        let acc = match &l.w {
+            QWeights::I8(w) => {
+                let wn = g.i8s(
+                    "w",
+                    &[l.in_dim, l.out_dim],
+                    &transpose(w, l.out_dim, l.in_dim),
+                );
+                g.node("MatMulInteger", "head_acc", &[&joints, &wn], &[])
+            }
+            // 15-bit weights as two int8 halves, `w = 128·hi + lo` with lo in 0..=127: two exact
+            // MatMulIntegers, the high one times 128 in int32.
+            QWeights::I16(w) => {
+                let hi: Vec<i8> = w.iter().map(|&v| (v >> 7) as i8).collect();
+                let lo: Vec<i8> = w.iter().map(|&v| (v & 0x7f) as i8).collect();
+                let hn = g.i8s(
+                    "w_hi",
+                    &[l.in_dim, l.out_dim],
+                    &transpose(&hi, l.out_dim, l.in_dim),
+                );
+                let ln = g.i8s(
+                    "w_lo",
+                    &[l.in_dim, l.out_dim],
+                    &transpose(&lo, l.out_dim, l.in_dim),
+                );
+                let k128 = g.i32s("k128", &[1], &[128]);
+                let h = g.node("MatMulInteger", "head_hi", &[&joints, &hn], &[]);
+                let h = g.node("Mul", "head_hi128", &[&h, &k128], &[]);
+                let lo = g.node("MatMulInteger", "head_lo", &[&joints, &ln], &[]);
+                g.node("Add", "head_acc", &[&h, &lo], &[])
+            }
+        };
         g.node_as("Add", name.into(), &[&acc, &bn], &[]);
         outputs.push(value_info(
             name,

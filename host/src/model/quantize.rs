@@ -2,14 +2,17 @@
 //!
 //! Calibration runs the core's f32 engine over sampled event windows and records each layer's
 //! largest activation. Scales are symmetric (zero point 0):
-//! - activations: one scale per layer output, `max|y| / 127`;
+//! - activations: `max|y| / 127`, per channel for the point layers before the pooled one, per
+//!   layer output otherwise;
 //! - weights: one scale per output channel, after folding the input's per-channel scales into
 //!   the weights (a layer reading a concatenation of layers with different scales, or the pooled
 //!   `[max, mean]`, sees one int8 tensor with per-channel units);
 //! - the first layer reads the integer-coded features (`x, y, p_acc, cnt` as is, `t_avg · 1024`)
 //!   with i16 weights bounded by ±1023 so that it is exact in f32 (see `evpose_core::quant`);
 //! - the heads use one weight scale for the whole tensor, so the int32 accumulators order the
-//!   same way as the dequantized logits and feed the argmax directly.
+//!   same way as the dequantized logits and feed the argmax directly; their weights keep 15 bits
+//!   (i16, `±HEAD_WEIGHT_LIMIT`; int8 features), and the blob records the dequantization
+//!   multiplier (`accumulator × scale = logit`) for joint confidences.
 //!
 //! The same integer computation is written as a standard ONNX graph ([`QuantNet::onnx`]) using
 //! only ops that tract and onnxruntime compute exactly: `Round`, `Clip`, `Conv` on exact
@@ -19,7 +22,10 @@
 use anyhow::{ensure, Result};
 use evpose_core::infer::MAX_BLOCK;
 use evpose_core::model::{DType, LayerKind, Preprocessing, WeightType, FEATURES};
-use evpose_core::quant::{InputCoding, FIRST_BIAS_LIMIT, FIRST_WEIGHT_LIMIT};
+use evpose_core::quant::{
+    InputCoding, FIRST_BIAS_LIMIT, FIRST_WEIGHT_LIMIT, HEAD_BIAS_LIMIT, HEAD_WEIGHT_LIMIT,
+    MAX_I16_HEAD_DIM,
+};
 use evpose_core::{scratch_words_for_block, Model, Plan, Stage};
 
 use super::net::{
@@ -29,8 +35,8 @@ use super::net::{
 /// Largest activation magnitudes seen during calibration.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Ranges {
-    /// Per point layer.
-    pub point: Vec<f32>,
+    /// Per point layer, per output channel.
+    pub point: Vec<Vec<f32>>,
     /// The pooled mean half (`[max, mean]`: the max half takes the last point layer's range).
     pub mean: f32,
     /// Per FC layer.
@@ -39,7 +45,18 @@ pub struct Ranges {
     pub windows: usize,
 }
 
-/// Records activation ranges of `net` over calibration inputs.
+impl Ranges {
+    /// One range for the first point layer's channels (their maximum): one activation scale
+    /// for the layer, as every other point layer has.
+    pub fn per_tensor_first_layer(&mut self) {
+        if let Some(first) = self.point.first_mut() {
+            let m = first.iter().fold(0f32, |a, &b| a.max(b));
+            first.iter_mut().for_each(|r| *r = m);
+        }
+    }
+}
+
+/// Records activation ranges of `net` over calibration inputs (per channel for point layers).
 pub fn calibrate(net: &FloatNet, inputs: &[Vec<[f32; 5]>]) -> Result<Ranges> {
     ensure!(
         !inputs.is_empty(),
@@ -54,7 +71,7 @@ pub fn calibrate(net: &FloatNet, inputs: &[Vec<[f32; 5]>]) -> Result<Ranges> {
     let mut y = vec![0f32; model.joints() * model.height()];
     let pooled = net.pooled_width();
     let mut r = Ranges {
-        point: vec![0.0; net.point.len()],
+        point: net.point.iter().map(|l| vec![0.0; l.out_dim]).collect(),
         mean: 0.0,
         fc: vec![0.0; net.fc.len()],
         windows: inputs.len(),
@@ -67,7 +84,11 @@ pub fn calibrate(net: &FloatNet, inputs: &[Vec<[f32; 5]>]) -> Result<Ranges> {
             &mut x,
             &mut y,
             |stage, v| match stage {
-                Stage::Point(i) => r.point[i] = r.point[i].max(absmax(v)),
+                Stage::Point(i) => {
+                    for (m, x) in r.point[i].iter_mut().zip(v) {
+                        *m = m.max(x.abs());
+                    }
+                }
                 Stage::Pooled => r.mean = r.mean.max(absmax(&v[pooled..])),
                 Stage::Fc(i) => r.fc[i] = r.fc[i].max(absmax(v)),
             },
@@ -176,7 +197,25 @@ fn fold(l: &Dense, s_in: &[f64], limit: f64, per_tensor: bool, bias_limit: f64) 
 /// Quantizes `net` with calibrated `ranges`.
 pub fn quantize(net: &FloatNet, ranges: &Ranges) -> Result<QuantNet> {
     let coding = InputCoding::DEFAULT;
-    let s_point: Vec<f64> = ranges.point.iter().map(|&r| act_scale(r)).collect();
+    // The first point layer's activation scales follow `ranges` (per channel unless
+    // [`Ranges::per_tensor_first_layer`] merged them; its consumers fold per-input-channel scales
+    // into their weights): a per-tensor scale there cost the paper-width model 1.2 px MPJPE2D in
+    // a fake-quantization test, while per channel cost the MCU model 0.1 px. Every other point
+    // layer has one scale (the pooled one must: the mean's constant `c` is one number).
+    let n_point = ranges.point.len();
+    let s_point: Vec<Vec<f64>> = ranges
+        .point
+        .iter()
+        .enumerate()
+        .map(|(i, ch)| {
+            if i == 0 && n_point > 1 {
+                ch.iter().map(|&r| act_scale(r)).collect()
+            } else {
+                let m = ch.iter().fold(0f32, |a, &b| a.max(b));
+                vec![act_scale(m); ch.len()]
+            }
+        })
+        .collect();
     let s_fc: Vec<f64> = ranges.fc.iter().map(|&r| act_scale(r)).collect();
     let s_mean = act_scale(ranges.mean);
     let mut layers = Vec::new();
@@ -193,10 +232,7 @@ pub fn quantize(net: &FloatNet, ranges: &Ranges) -> Result<QuantNet> {
         } else {
             let mut s = Vec::with_capacity(l.in_dim);
             for src in (1..=net.point.len()).filter(|b| l.sources >> b & 1 == 1) {
-                s.extend(std::iter::repeat_n(
-                    s_point[src - 1],
-                    net.point[src - 1].out_dim,
-                ));
+                s.extend_from_slice(&s_point[src - 1]);
             }
             (s, 127.0, f64::from(i32::MAX))
         };
@@ -206,9 +242,13 @@ pub fn quantize(net: &FloatNet, ranges: &Ranges) -> Result<QuantNet> {
         } else {
             QWeights::I8(f.w.iter().map(|&v| v as i8).collect())
         };
-        layers.push(requant_layer(LayerKind::Point, l, w, f, s_point[i]));
+        layers.push(requant_layer(LayerKind::Point, l, w, f, &s_point[i]));
     }
-    let last = *s_point.last().unwrap_or(&1.0);
+    let last = s_point
+        .last()
+        .and_then(|s| s.first())
+        .copied()
+        .unwrap_or(1.0);
     let pooled = net.pooled_width();
     let mut s_in: Vec<f64> = std::iter::repeat_n(last, pooled)
         .chain(std::iter::repeat_n(s_mean, pooled))
@@ -216,23 +256,45 @@ pub fn quantize(net: &FloatNet, ranges: &Ranges) -> Result<QuantNet> {
     for (i, l) in net.fc.iter().enumerate() {
         let f = fold(l, &s_in, 127.0, false, f64::from(i32::MAX));
         let w = QWeights::I8(f.w.iter().map(|&v| v as i8).collect());
-        layers.push(requant_layer(LayerKind::Fc, l, w, f, s_fc[i]));
+        layers.push(requant_layer(
+            LayerKind::Fc,
+            l,
+            w,
+            f,
+            &vec![s_fc[i]; l.out_dim],
+        ));
         s_in = vec![s_fc[i]; l.out_dim];
     }
     for (kind, h) in [
         (LayerKind::HeadX, &net.head_x),
         (LayerKind::HeadY, &net.head_y),
     ] {
-        let f = fold(h, &s_in[..h.in_dim], 127.0, true, f64::from(i32::MAX));
+        // 15-bit weights (blob version 3): int8 head weights cost 0.27 px MPJPE2D on the MCU
+        // model (the argmax of a σ-8 SimDR bump is sensitive to rounding), i16 nothing
+        // measurable, for ~0.1 % of the MACs.
+        ensure!(
+            h.in_dim <= MAX_I16_HEAD_DIM,
+            "head dim {} above {MAX_I16_HEAD_DIM}",
+            h.in_dim
+        );
+        let f = fold(
+            h,
+            &s_in[..h.in_dim],
+            f64::from(HEAD_WEIGHT_LIMIT),
+            true,
+            f64::from(HEAD_BIAS_LIMIT),
+        );
         layers.push(QLayer {
             kind,
             in_dim: h.in_dim,
             out_dim: h.out_dim,
             sources: 0,
             leaky: None,
-            w: QWeights::I8(f.w.iter().map(|&v| v as i8).collect()),
+            w: QWeights::I16(f.w.iter().map(|&v| v as i16).collect()),
             b: f.b,
-            scales: Vec::new(),
+            // One weight scale for the whole head: every output's dequantization multiplier is
+            // the same (blob version 3: the logits' scale, for confidences).
+            scales: f.sw.iter().map(|&s| s as f32).collect(),
         });
     }
     Ok(QuantNet {
@@ -250,7 +312,8 @@ pub fn quantize(net: &FloatNet, ranges: &Ranges) -> Result<QuantNet> {
     })
 }
 
-fn requant_layer(kind: LayerKind, l: &Dense, w: QWeights, f: Folded, s_out: f64) -> QLayer {
+/// A requantized layer; `s_out` is the output's activation scale per channel.
+fn requant_layer(kind: LayerKind, l: &Dense, w: QWeights, f: Folded, s_out: &[f64]) -> QLayer {
     QLayer {
         kind,
         in_dim: l.in_dim,
@@ -259,7 +322,12 @@ fn requant_layer(kind: LayerKind, l: &Dense, w: QWeights, f: Folded, s_out: f64)
         leaky: l.leaky,
         w,
         b: f.b,
-        scales: f.sw.iter().map(|&s| (s / s_out) as f32).collect(),
+        scales: f
+            .sw
+            .iter()
+            .zip(s_out)
+            .map(|(&s, &o)| (s / o) as f32)
+            .collect(),
     }
 }
 
