@@ -16,6 +16,8 @@
 //! | inference | [`infer`] | the inference [`Plan`]: f32 and int8 PointNet engines, fused per point, fixed scratch |
 //! | kernels | [`kernels`] | matrix kernels (row-major and packed weights), requantization, pooling: scalar reference and optimized versions |
 //! | decoding | [`simdr`] | SimDR labels and argmax decoding to 2-D joints |
+//! | confidence | [`confidence`] | per-joint confidence: softmax mass near each argmax |
+//! | temporal filter | [`smooth`] | confidence-gated One-Euro filter of joints over windows |
 //! | per window | [`pipeline`] | one window of events in, one estimate out: the loop every pipeline runs |
 //! | skeleton | [`skeleton`] | DHP19's 13 joints: order, names, lines |
 //! | triangulation | `geometry` | projection and two-view triangulation of joints to 3-D (feature `geometry`) |
@@ -41,6 +43,7 @@
 #![deny(missing_docs)]
 #![warn(trivial_numeric_casts, unused_qualifications)]
 
+pub mod confidence;
 pub mod event;
 #[cfg(feature = "geometry")]
 pub mod geometry;
@@ -53,6 +56,7 @@ pub mod raster;
 pub mod sample;
 pub mod simdr;
 pub mod skeleton;
+pub mod smooth;
 
 pub use event::Event;
 pub use infer::{

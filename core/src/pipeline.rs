@@ -244,6 +244,20 @@ pub struct Estimate<'a> {
 }
 
 impl Estimate<'_> {
+    /// The confidence of each joint into `out[..J]` ([`crate::confidence`]), with the model's
+    /// logit scales ([`crate::Model::head_scales`]).
+    pub fn confidence(&self, scales: [f32; 2], out: &mut [f32]) -> Result<(), ShapeError> {
+        let j = self.joints.len().max(1);
+        match self.heads {
+            Heads::I8 { x, y } => {
+                crate::confidence::joints(x, y, x.len() / j, y.len() / j, scales, self.joints, out)
+            }
+            Heads::F32 { x, y } => {
+                crate::confidence::joints(x, y, x.len() / j, y.len() / j, scales, self.joints, out)
+            }
+        }
+    }
+
     /// CRC-32 digests of the window's point cloud, input and heads.
     pub fn digest(&self) -> Digest {
         Digest {

@@ -684,6 +684,8 @@ pub struct Dataset {
     pub recording: Vec<u32>,
     /// Window index per row.
     pub window: Vec<u32>,
+    /// First and last event time of each row's window, µs.
+    pub span_us: Vec<[i64; 2]>,
 }
 
 impl Dataset {
@@ -725,6 +727,11 @@ impl Dataset {
                 .map(|v| v as u32)
                 .collect(),
             window: read("window.npy")?.into_iter().map(|v| v as u32).collect(),
+            // µs timestamps are below 2^53: exact through f64.
+            span_us: read("span_us.npy")?
+                .chunks_exact(2)
+                .map(|t| [t[0] as i64, t[1] as i64])
+                .collect(),
             manifest,
         };
         let n = ds.manifest.samples as usize;
@@ -736,6 +743,7 @@ impl Dataset {
             ds.movement.len(),
             ds.recording.len(),
             ds.window.len(),
+            ds.span_us.len(),
         ]
         .iter()
         .any(|&l| l != n)

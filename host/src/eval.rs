@@ -21,6 +21,76 @@ use crate::dataset::{Dataset, JOINTS};
 /// Predicted joints of one sample, pixels `(x, y)`.
 pub type Joints2d = [[f32; 2]; JOINTS];
 
+/// One sample's prediction: decoded joints and their confidences
+/// ([`evpose_core::confidence`]; 1 where the model gives none).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Prediction {
+    /// Joints, pixels.
+    pub joints: Joints2d,
+    /// Confidence per joint, in [0, 1].
+    pub confidence: [f32; JOINTS],
+}
+
+impl Prediction {
+    /// Decodes the heads `x` (`J × width`) and `y` (`J × height`) with logit `scales`
+    /// ([`evpose_core::Model::head_scales`]; `None`: confidence 1 for every joint).
+    pub fn from_heads<T: evpose_core::confidence::HeadValue>(
+        x: &[T],
+        y: &[T],
+        width: usize,
+        height: usize,
+        scales: Option<[f32; 2]>,
+    ) -> Result<Self> {
+        let mut joints = [evpose_core::Joint2d::default(); JOINTS];
+        evpose_core::decode(x, y, width, height, &mut joints)?;
+        let mut confidence = [1f32; JOINTS];
+        if let Some(scales) = scales {
+            evpose_core::confidence::joints(x, y, width, height, scales, &joints, &mut confidence)?;
+        }
+        Ok(Self {
+            joints: joints.map(|p| [f32::from(p.x), f32::from(p.y)]),
+            confidence,
+        })
+    }
+}
+
+/// The predictions after the confidence-gated temporal filter ([`evpose_core::smooth`]), run
+/// over each recording's windows in order, camera by camera, with each window's last event
+/// time as its time.
+pub fn smooth(
+    ds: &Dataset,
+    predictions: &[Prediction],
+    params: evpose_core::smooth::SmoothParams,
+) -> Result<Vec<Joints2d>> {
+    use evpose_core::smooth::{AxisState, Smoother};
+    if predictions.len() != ds.len() {
+        bail!("{} predictions for {} samples", predictions.len(), ds.len());
+    }
+    let mut sequences: BTreeMap<(u32, u8), Vec<usize>> = BTreeMap::new();
+    for i in 0..ds.len() {
+        sequences
+            .entry((ds.recording[i], ds.camera[i]))
+            .or_default()
+            .push(i);
+    }
+    let mut out: Vec<Joints2d> = predictions.iter().map(|p| p.joints).collect();
+    let mut state = [AxisState::default(); 2 * JOINTS];
+    for rows in sequences.values_mut() {
+        rows.sort_by_key(|&i| ds.window[i]);
+        let mut f = Smoother::new(params, &mut state);
+        for &i in rows.iter() {
+            let p = &predictions[i];
+            let joints = p.joints.map(|[x, y]| evpose_core::Joint2d {
+                x: x as u16,
+                y: y as u16,
+            });
+            f.update(ds.span_us[i][1], &joints, &p.confidence, &mut out[i])
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+        }
+    }
+    Ok(out)
+}
+
 /// Errors of one group (a camera, a movement, a joint, or everything).
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct Mpjpe {
@@ -76,6 +146,11 @@ pub struct EvalReport {
     pub per_joint: Vec<Mpjpe>,
     /// Samples per second of the prediction (0 for the baseline).
     pub samples_per_second: f64,
+    /// Mean joint confidence over all samples (`None` for the baseline).
+    pub mean_confidence: Option<f64>,
+    /// The same figures after the temporal filter (`evpose eval --smooth`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub smoothed: Option<Box<EvalReport>>,
 }
 
 /// Euclidean 2-D error of each visible joint.
@@ -189,6 +264,8 @@ pub fn evaluate(
             .collect(),
         per_joint: per_joint.iter().map(Acc::mpjpe).collect(),
         samples_per_second,
+        mean_confidence: None,
+        smoothed: None,
     })
 }
 
@@ -228,13 +305,13 @@ pub fn mean_pose(train: &Dataset, test: &Dataset) -> Result<Vec<Joints2d>> {
 /// 40 MiB).
 const BATCH: usize = 1024;
 
-/// Decoded joints of each sample with the core's engine on `blob` (int8 or f32), in parallel
+/// Predictions for each sample with the core's engine on `blob` (int8 or f32), in parallel
 /// (rayon, one runner per thread); `progress(done)` after each batch.
 pub fn predict_core(
     ds: &Dataset,
     blob: &crate::model::AlignedBlob,
     progress: impl Fn(usize) + Sync,
-) -> Result<Vec<Joints2d>> {
+) -> Result<Vec<Prediction>> {
     use rayon::prelude::*;
     let runner = crate::model::CoreRunner::new(blob)?;
     let (w, h, j) = (
@@ -246,6 +323,7 @@ pub fn predict_core(
         bail!("the model has {j} joints; the dataset has {JOINTS}");
     }
     let int8 = runner.model().dtype() == evpose_core::DType::I8;
+    let scales = runner.model().head_scales();
     predict_batches(ds, progress, |batch| {
         batch
             .par_iter()
@@ -253,29 +331,27 @@ pub fn predict_core(
                 || crate::model::CoreRunner::new(blob),
                 |runner, points| {
                     let runner = runner.as_mut().map_err(|e| anyhow::anyhow!("{e:#}"))?;
-                    let mut joints = [evpose_core::Joint2d::default(); JOINTS];
                     if int8 {
                         let l = runner.run_i8(points)?;
-                        evpose_core::decode(&l.x, &l.y, w, h, &mut joints)?;
+                        Prediction::from_heads(&l.x, &l.y, w, h, scales)
                     } else {
                         let l = runner.run_f32(points)?;
-                        evpose_core::decode(&l.x, &l.y, w, h, &mut joints)?;
+                        Prediction::from_heads(&l.x, &l.y, w, h, scales)
                     }
-                    Ok(joints.map(|p| [f32::from(p.x), f32::from(p.y)]))
                 },
             )
             .collect()
     })
 }
 
-/// Decoded joints of each sample with tract running an ONNX file (any backbone of the family),
+/// Predictions for each sample with tract running an ONNX file (any backbone of the family),
 /// in parallel (one tract plan per thread). Feature `onnx`.
 #[cfg(feature = "onnx")]
 pub fn predict_tract(
     ds: &Dataset,
     onnx: &std::path::Path,
     progress: impl Fn(usize) + Sync,
-) -> Result<Vec<Joints2d>> {
+) -> Result<Vec<Prediction>> {
     use rayon::prelude::*;
     predict_batches(ds, progress, |batch| {
         batch
@@ -292,9 +368,7 @@ pub fn predict_tract(
                             l.joints
                         );
                     }
-                    let mut joints = [evpose_core::Joint2d::default(); JOINTS];
-                    evpose_core::decode(&l.x, &l.y, w, h, &mut joints)?;
-                    Ok(joints.map(|p| [f32::from(p.x), f32::from(p.y)]))
+                    Prediction::from_heads(&l.x, &l.y, w, h, Some([1.0; 2]))
                 },
             )
             .collect()
@@ -304,8 +378,8 @@ pub fn predict_tract(
 fn predict_batches(
     ds: &Dataset,
     progress: impl Fn(usize) + Sync,
-    mut run: impl FnMut(&[Vec<[f32; 5]>]) -> Result<Vec<Joints2d>>,
-) -> Result<Vec<Joints2d>> {
+    mut run: impl FnMut(&[Vec<[f32; 5]>]) -> Result<Vec<Prediction>>,
+) -> Result<Vec<Prediction>> {
     let mut out = Vec::with_capacity(ds.len());
     for start in (0..ds.len()).step_by(BATCH) {
         let batch = ds.points_range(start, BATCH.min(ds.len() - start))?;

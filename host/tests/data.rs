@@ -189,7 +189,54 @@ fn tiny_dataset(label2d: Vec<[[f32; 2]; JOINTS]>, mask: Vec<[u8; JOINTS]>) -> Da
         movement: vec![0; n],
         recording: vec![0; n],
         window: (0..n).map(|i| (i / 2) as u32).collect(),
+        // Windows 33 ms apart, the two cameras of a window sharing its span.
+        span_us: (0..n)
+            .map(|i| [(i / 2) as i64 * 33_000, (i / 2) as i64 * 33_000 + 30_000])
+            .collect(),
     }
+}
+
+/// The temporal filter lowers the error of predictions that jitter around a still pose, and
+/// an unconfident outlier barely moves it.
+#[test]
+fn smoothing_reduces_jitter_and_ignores_unconfident_outliers() {
+    use evpose_core::smooth::SmoothParams;
+    let n = 40;
+    let ds = tiny_dataset(vec![[[100.0, 100.0]; JOINTS]; n], vec![[1; JOINTS]; n]);
+    let preds: Vec<eval::Prediction> = (0..n)
+        .map(|i| {
+            let w = i / 2;
+            // ±6 px jitter; window 10 an outlier 80 px off that the network is unsure of.
+            let x = if w == 10 {
+                180.0
+            } else if w % 2 == 0 {
+                106.0
+            } else {
+                94.0
+            };
+            eval::Prediction {
+                joints: [[x, 100.0]; JOINTS],
+                confidence: [if w == 10 { 0.02 } else { 0.8 }; JOINTS],
+            }
+        })
+        .collect();
+    let raw: Vec<eval::Joints2d> = preds.iter().map(|p| p.joints).collect();
+    let smoothed = eval::smooth(&ds, &preds, SmoothParams::DEFAULT).unwrap();
+    let err = |p: &[eval::Joints2d]| -> f32 {
+        p.iter().map(|j| (j[0][0] - 100.0).abs()).sum::<f32>() / p.len() as f32
+    };
+    assert!(
+        err(&smoothed) < 0.5 * err(&raw),
+        "{} vs {}",
+        err(&smoothed),
+        err(&raw)
+    );
+    // The outlier (rows 20, 21) moves the filtered joint by a few pixels, not 80.
+    assert!(
+        (smoothed[20][0][0] - 100.0).abs() < 10.0,
+        "{:?}",
+        smoothed[20][0]
+    );
 }
 
 #[test]

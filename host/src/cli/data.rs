@@ -11,6 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use crate::dataset::{self, Dataset, DatasetOptions, LabelRule, SplitFilter};
 use crate::eval::{self, EvalReport};
 use crate::{dhp19, model};
+use evpose_core::smooth::SmoothParams;
 
 /// Arguments of `evpose dataset` (stable: scripts call them).
 #[derive(Args, Debug)]
@@ -125,6 +126,31 @@ pub struct EvalArgs {
     /// Write a PNG bar chart of the error per joint (2-D px and 3-D mm).
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// Also measure the predictions after the confidence-gated temporal filter
+    /// (`evpose_core::smooth`), run over each recording's windows in order.
+    #[arg(long)]
+    pub smooth: bool,
+    /// Filter cut-off at rest, Hz (with --smooth).
+    #[arg(long, default_value_t = SmoothParams::DEFAULT.min_cutoff_hz)]
+    pub min_cutoff: f32,
+    /// Filter cut-off increase per px/s of motion (with --smooth).
+    #[arg(long, default_value_t = SmoothParams::DEFAULT.beta)]
+    pub beta: f32,
+    /// Confidence at which a joint takes the filter's full step (with --smooth).
+    #[arg(long, default_value_t = SmoothParams::DEFAULT.full_confidence)]
+    pub full_confidence: f32,
+}
+
+impl EvalArgs {
+    /// The filter parameters of `--smooth`.
+    pub fn smooth_params(&self) -> SmoothParams {
+        SmoothParams {
+            min_cutoff_hz: self.min_cutoff,
+            beta: self.beta,
+            full_confidence: self.full_confidence,
+            ..SmoothParams::DEFAULT
+        }
+    }
 }
 
 /// Runs `evpose eval`.
@@ -141,7 +167,13 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
     let bar = bar(ds.len() as u64, "samples");
     let (predictions, predictor) = match (&a.baseline, &a.model) {
         (Some(train), _) => (
-            eval::mean_pose(&Dataset::open(train)?, &ds)?,
+            eval::mean_pose(&Dataset::open(train)?, &ds)?
+                .into_iter()
+                .map(|joints| eval::Prediction {
+                    joints,
+                    confidence: [1.0; dataset::JOINTS],
+                })
+                .collect(),
             format!("mean pose of {}", train.display()),
         ),
         (None, Some(path)) => {
@@ -184,13 +216,26 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
     } else {
         ds.len() as f64 / secs
     };
-    let report = eval::evaluate(
-        &ds,
-        &predictions,
-        [(fa.0, &fa.1), (fb.0, &fb.1)],
-        predictor,
-        rate,
-    )?;
+    let front = [(fa.0, &fa.1), (fb.0, &fb.1)];
+    let joints: Vec<eval::Joints2d> = predictions.iter().map(|p| p.joints).collect();
+    let mut report = eval::evaluate(&ds, &joints, front, predictor.clone(), rate)?;
+    if a.baseline.is_none() {
+        let sum: f64 = predictions
+            .iter()
+            .flat_map(|p| p.confidence)
+            .map(f64::from)
+            .sum();
+        report.mean_confidence = Some(sum / (predictions.len() * dataset::JOINTS) as f64);
+    }
+    if a.smooth {
+        let smoothed = eval::smooth(&ds, &predictions, a.smooth_params())?;
+        let p = a.smooth_params();
+        let name = format!(
+            "{predictor}, smoothed (min cut-off {} Hz, beta {}, full confidence {})",
+            p.min_cutoff_hz, p.beta, p.full_confidence
+        );
+        report.smoothed = Some(Box::new(eval::evaluate(&ds, &smoothed, front, name, rate)?));
+    }
     if let Some(path) = &a.json {
         std::fs::write(path, serde_json::to_string_pretty(&report)?)?;
     }
@@ -206,7 +251,7 @@ fn tract(
     ds: &Dataset,
     path: &std::path::Path,
     progress: impl Fn(usize) + Sync,
-) -> Result<Vec<eval::Joints2d>> {
+) -> Result<Vec<eval::Prediction>> {
     eval::predict_tract(ds, path, progress)
 }
 
@@ -215,7 +260,7 @@ fn tract(
     _: &Dataset,
     _: &std::path::Path,
     _: impl Fn(usize) + Sync,
-) -> Result<Vec<eval::Joints2d>> {
+) -> Result<Vec<eval::Prediction>> {
     bail!("this evpose was built without tract (cargo feature `onnx`)")
 }
 
@@ -259,6 +304,23 @@ fn print_report(r: &EvalReport) {
             name,
             fmt(m.mpjpe2d_px),
             fmt(m.mpjpe3d_mm)
+        );
+    }
+    if let Some(c) = r.mean_confidence {
+        println!("mean joint confidence {c:.3}");
+    }
+    if let Some(s) = &r.smoothed {
+        println!("\n{}", s.predictor);
+        let gain = |a: Option<f64>, b: Option<f64>| match (a, b) {
+            (Some(a), Some(b)) if a > 0.0 => format!(" ({:+.1} %)", 100.0 * (b - a) / a),
+            _ => String::new(),
+        };
+        println!(
+            "MPJPE2D {} px{}; MPJPE3D {} mm{}",
+            fmt(s.mpjpe2d_px),
+            gain(r.mpjpe2d_px, s.mpjpe2d_px),
+            fmt(s.mpjpe3d_mm),
+            gain(r.mpjpe3d_mm, s.mpjpe3d_mm)
         );
     }
 }

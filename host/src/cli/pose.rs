@@ -65,13 +65,19 @@ pub fn pose(a: &PoseArgs) -> Result<()> {
         shared_events: a.all_camera_windows.then_some(opts.window_events),
     };
     let mut reader = io::open_with(&a.events, &a.input.options())?;
+    let (mut windows, mut no_body) = (0usize, 0usize);
     pose::poses(reader.as_mut(), &runner, &opts, |p| {
+        windows += 1;
+        no_body += usize::from(p.no_body() == Some(true));
         if a.json {
             println!("{}", serde_json::to_string(&p)?);
         } else {
             let js: Vec<String> = p.joints.iter().map(|(x, y)| format!("({x},{y})")).collect();
+            let conf = p
+                .mean_confidence()
+                .map_or(String::new(), |c| format!("  confidence {c:.3}"));
             println!(
-                "window {:>3}  {} points  joints {}",
+                "window {:>3}  {} points{conf}  joints {}",
                 p.window,
                 p.points,
                 js.join(" ")
@@ -80,5 +86,12 @@ pub fn pose(a: &PoseArgs) -> Result<()> {
         Ok(())
     })
     .with_context(|| a.events.display().to_string())?;
+    if windows > 0 && 2 * no_body > windows {
+        eprintln!(
+            "no body seen: {no_body} of {windows} windows have a mean joint confidence below {} \
+             (the joints above are guesses)",
+            pose::NO_BODY_CONFIDENCE
+        );
+    }
     Ok(())
 }

@@ -1,0 +1,236 @@
+//! Temporal filtering of 2-D joints over windows: a One-Euro filter (Casiez, Roussel and Vogel,
+//! CHI 2012) per joint coordinate, gated by the joint's confidence.
+//!
+//! Per coordinate, with `dt` the time between the two windows' last events:
+//! `α(f) = 1 / (1 + 1 / (2π f dt))`; the derivative is low-passed at `d_cutoff_hz`, and the
+//! value at `f = min_cutoff_hz + beta · |derivative|` (slow motion is smoothed hard, fast motion
+//! passes). Confidence gating scales the step: `α' = α · min(1, c / full_confidence)`, so a joint
+//! the network is unsure of (a limb that made no events in this window) mostly keeps its
+//! filtered position, and a confident one follows the new estimate. The first window of a
+//! sequence, and any window after a gap longer than `reset_after_us`, is taken as is.
+//!
+//! Fixed memory: the caller lends one [`AxisState`] per coordinate (`2 × J`); no allocation,
+//! `f32` with `libm`, the same bits on the host and an MCU.
+
+use crate::simdr::Joint2d;
+
+/// Filter parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SmoothParams {
+    /// Cut-off at rest, Hz: lower smooths more.
+    pub min_cutoff_hz: f32,
+    /// Cut-off increase per pixel/second of motion.
+    pub beta: f32,
+    /// Cut-off of the derivative's low-pass, Hz.
+    pub d_cutoff_hz: f32,
+    /// Confidence at and above which a joint takes the full One-Euro step.
+    pub full_confidence: f32,
+    /// Restart after a gap longer than this between windows, µs.
+    pub reset_after_us: i64,
+}
+
+impl SmoothParams {
+    /// Defaults chosen on the synthetic validation set (`evpose eval --smooth`, README).
+    pub const DEFAULT: Self = Self {
+        min_cutoff_hz: 1.0,
+        beta: 0.5,
+        d_cutoff_hz: 1.0,
+        full_confidence: 0.5,
+        reset_after_us: 1_000_000,
+    };
+}
+
+impl Default for SmoothParams {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// One filtered coordinate.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AxisState {
+    /// Filtered value, pixels.
+    pub value: f32,
+    /// Filtered derivative, pixels per second.
+    pub rate: f32,
+}
+
+/// The lent state does not hold two coordinates per joint.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StateTooSmall {
+    /// Coordinates needed (`2 × J`).
+    pub needed: usize,
+    /// Coordinates lent.
+    pub got: usize,
+}
+
+impl core::fmt::Display for StateTooSmall {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(
+            f,
+            "smoother state holds {} coordinates, {} needed",
+            self.got, self.needed
+        )
+    }
+}
+
+/// A confidence-gated One-Euro filter over a sequence of windows of one camera.
+#[derive(Debug)]
+pub struct Smoother<'s> {
+    params: SmoothParams,
+    state: &'s mut [AxisState],
+    last_t_us: Option<i64>,
+}
+
+fn alpha(cutoff_hz: f32, dt_s: f32) -> f32 {
+    let tau = 1.0 / (2.0 * core::f32::consts::PI * cutoff_hz);
+    1.0 / (1.0 + tau / dt_s)
+}
+
+impl<'s> Smoother<'s> {
+    /// A filter over the lent `state` (two coordinates per joint).
+    pub fn new(params: SmoothParams, state: &'s mut [AxisState]) -> Self {
+        Self {
+            params,
+            state,
+            last_t_us: None,
+        }
+    }
+
+    /// Forgets the sequence: the next window is taken as is.
+    pub fn reset(&mut self) {
+        self.last_t_us = None;
+    }
+
+    /// Filters the joints of the window that ended at `t_us` with their `confidence` into
+    /// `out[j] = [x, y]` (pixels, sub-pixel).
+    pub fn update(
+        &mut self,
+        t_us: i64,
+        joints: &[Joint2d],
+        confidence: &[f32],
+        out: &mut [[f32; 2]],
+    ) -> Result<(), StateTooSmall> {
+        let n = joints.len().min(confidence.len()).min(out.len());
+        if self.state.len() < 2 * n {
+            return Err(StateTooSmall {
+                needed: 2 * n,
+                got: self.state.len(),
+            });
+        }
+        let p = self.params;
+        let dt_us = self.last_t_us.map(|last| t_us - last);
+        let fresh = match dt_us {
+            None => true,
+            Some(d) => d <= 0 || d > p.reset_after_us,
+        };
+        self.last_t_us = Some(t_us);
+        let dt = dt_us.map_or(0.0, |d| d as f32 * 1e-6);
+        for (j, ((joint, &c), o)) in joints
+            .iter()
+            .zip(confidence)
+            .zip(out.iter_mut())
+            .enumerate()
+        {
+            let gate = if p.full_confidence > 0.0 {
+                (c / p.full_confidence).clamp(0.0, 1.0)
+            } else {
+                1.0
+            };
+            for (axis, raw) in [f32::from(joint.x), f32::from(joint.y)]
+                .into_iter()
+                .enumerate()
+            {
+                let s = &mut self.state[2 * j + axis];
+                if fresh {
+                    *s = AxisState {
+                        value: raw,
+                        rate: 0.0,
+                    };
+                } else {
+                    let rate = (raw - s.value) / dt;
+                    let a_d = alpha(p.d_cutoff_hz, dt) * gate;
+                    s.rate += a_d * (rate - s.rate);
+                    let cutoff = p.min_cutoff_hz + p.beta * libm::fabsf(s.rate);
+                    let a = alpha(cutoff, dt) * gate;
+                    s.value += a * (raw - s.value);
+                }
+                o[axis] = s.value;
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(params: SmoothParams, seq: &[(i64, u16, f32)]) -> [f32; 8] {
+        let mut state = [AxisState::default(); 2];
+        let mut f = Smoother::new(params, &mut state);
+        let mut out = [0f32; 8];
+        for (i, &(t, x, c)) in seq.iter().enumerate() {
+            let mut o = [[0f32; 2]];
+            f.update(t, &[Joint2d { x, y: 0 }], &[c], &mut o).unwrap();
+            out[i] = o[0][0];
+        }
+        out
+    }
+
+    #[test]
+    fn first_window_passes_and_steps_are_smoothed() {
+        let p = SmoothParams::DEFAULT;
+        let o = run(p, &[(0, 100, 1.0), (33_000, 110, 1.0), (66_000, 110, 1.0)]);
+        assert_eq!(o[0], 100.0);
+        assert!(o[1] > 100.0 && o[1] < 110.0, "{o:?}");
+        assert!(o[2] > o[1] && o[2] < 110.0, "{o:?}");
+    }
+
+    #[test]
+    fn confidence_gates_the_step() {
+        let p = SmoothParams::DEFAULT;
+        let sure = run(p, &[(0, 100, 1.0), (33_000, 140, 1.0)]);
+        let unsure = run(p, &[(0, 100, 1.0), (33_000, 140, 0.1)]);
+        let none = run(p, &[(0, 100, 1.0), (33_000, 140, 0.0)]);
+        assert!(
+            sure[1] > unsure[1] && unsure[1] > 100.0,
+            "{sure:?} {unsure:?}"
+        );
+        assert_eq!(none[1], 100.0);
+    }
+
+    #[test]
+    fn fast_motion_follows_closer_than_slow() {
+        // beta raises the cut-off with speed: a large jump is followed more closely (relative).
+        let p = SmoothParams::DEFAULT;
+        let slow = run(p, &[(0, 100, 1.0), (33_000, 102, 1.0)]);
+        let fast = run(p, &[(0, 100, 1.0), (33_000, 200, 1.0)]);
+        assert!(
+            (fast[1] - 100.0) / 100.0 > (slow[1] - 100.0) / 2.0,
+            "{slow:?} {fast:?}"
+        );
+    }
+
+    #[test]
+    fn gaps_and_time_going_back_restart() {
+        let p = SmoothParams::DEFAULT;
+        let gap = run(p, &[(0, 100, 1.0), (5_000_000, 140, 1.0)]);
+        assert_eq!(gap[1], 140.0);
+        let back = run(p, &[(10_000, 100, 1.0), (5_000, 140, 1.0)]);
+        assert_eq!(back[1], 140.0);
+    }
+
+    #[test]
+    fn too_little_state_is_an_error() {
+        let mut state = [AxisState::default(); 3];
+        let mut f = Smoother::new(SmoothParams::DEFAULT, &mut state);
+        let j = [Joint2d::default(); 2];
+        let mut o = [[0f32; 2]; 2];
+        assert_eq!(
+            f.update(0, &j, &[1.0; 2], &mut o),
+            Err(StateTooSmall { needed: 4, got: 3 })
+        );
+    }
+}
