@@ -1,8 +1,9 @@
 //! 1. Puts the repository's `memory.x` where cortex-m-rt's `link.x` finds it, and asks the linker
 //!    for a map file next to the ELF (`target/thumbv7em-none-eabihf/<profile>/evpose-firmware.map`).
 //! 2. Sizes the inference buffers from the embedded model at compile time: parses
-//!    `assets/pointnet-small.evq` with the same `evpose_core::Model::parse` the firmware runs and
-//!    writes `model_dims.rs` (joints, SimDR width and height, `scratch_words`) into `OUT_DIR`.
+//!    `models/mcu.evq` with the same `evpose_core::Model::parse` the firmware runs and writes
+//!    `model_dims.rs` (joints, SimDR width and height, `scratch_words`, and the point count the
+//!    blob records, 2,048 when it records none) into `OUT_DIR`.
 
 use std::path::{Path, PathBuf};
 use std::{env, fs};
@@ -23,7 +24,7 @@ fn main() {
         println!("cargo:rustc-link-arg-bins=-Map={}", map.display());
     }
 
-    let blob = manifest.join("../assets/pointnet-small.evq");
+    let blob = manifest.join("../models/mcu.evq");
     println!("cargo:rerun-if-changed={}", blob.display());
     fs::write(out.join("model_dims.rs"), model_dims(&blob))
         .unwrap_or_else(|e| panic!("cannot write model_dims.rs: {e}"));
@@ -46,11 +47,15 @@ fn model_dims(path: &Path) -> String {
          /// SimDR y-axis length (sensor height) of the embedded model.\n\
          const HEIGHT: usize = {};\n\
          /// int8 engine scratch of the embedded model, in 32-bit words (`scratch_words`).\n\
-         const SCRATCH_WORDS: usize = {};\n",
+         const SCRATCH_WORDS: usize = {};\n\
+         /// Network input points per window: the `N` the blob records (`evpose quantize`\n\
+         /// samples the same), 2,048 (the paper's) when it records none.\n\
+         const POINTS: usize = {};\n",
         path.file_name().unwrap_or_default().to_string_lossy(),
         model.joints(),
         model.width(),
         model.height(),
-        evpose_core::scratch_words(&model)
+        evpose_core::scratch_words(&model),
+        model.input_points()
     )
 }

@@ -1,10 +1,7 @@
 #!/usr/bin/env bash
-# Regenerates every firmware asset (firmware/assets/, and the model in assets/, shared with
-# evpose pose):
+# Regenerates the firmware's event asset (firmware/assets/). The model the firmware embeds is
+# models/mcu.evq, shared with `evpose pose`, made by train/recipe.sh (steps mcu, quantize):
 #
-#   pointnet-small.evq   the int8 model: `evpose quantize` of tests/fixtures/pointnet-small.onnx,
-#                        calibrated on the windows street-00..02 (2,048 points per 7,500-event
-#                        window, sampler seed 0: the tool's defaults)
 #   street-00-02.evs     the first 22,500 events (three 7,500-event windows, which are the
 #                        bundled street-00..02) of the DAVIS346 street recording, in the EVS1
 #                        stream format (firmware/src/input.rs), written by the reference encoder
@@ -22,10 +19,7 @@ trap 'rm -rf "$tmp"' EXIT
 
 evpose() { cargo run --quiet --release -p evpose-host --bin evpose -- "$@"; }
 
-evpose quantize --model tests/fixtures/pointnet-small.onnx \
-  --calib tests/fixtures/street-0{0,1,2}.events.npy \
-  --out assets/pointnet-small.evq
 evpose convert "$recording" --out "$tmp/events.npy"
 EVPOSE_EVENTS_NPY="$tmp/events.npy" cargo test --quiet --release -p evpose-tests \
   --test firmware_qemu -- --ignored --exact regenerate_event_asset
-ls -l firmware/assets assets/pointnet-small.evq
+ls -l firmware/assets

@@ -29,9 +29,9 @@ use evpose_host::budget::image_budget;
 use evpose_host::model::AlignedBlob;
 use evpose_tests::fixtures;
 
-/// Network input points per window and sampler seed: the firmware's `POINTS` and `SEED`.
-const POINTS: usize = 2048;
+/// Sampler seed: the firmware's `SEED` (its point count is the model's `input_points`).
 const SEED: u64 = 0;
+
 /// The windows in the event asset: the first 22,500 events of the DAVIS346 street recording,
 /// which are the bundled windows street-00, -01 and -02.
 const WINDOWS: [&str; 3] = ["street-00", "street-01", "street-02"];
@@ -51,7 +51,7 @@ fn event_asset() -> PathBuf {
 }
 
 fn model_asset() -> PathBuf {
-    firmware_dir().join("../assets/pointnet-small.evq")
+    firmware_dir().join("../models/mcu.evq")
 }
 
 /// The reference codec of the `EVS1` stream (see `firmware/src/input.rs`).
@@ -396,6 +396,8 @@ struct WindowResult {
     crc_input: u32,
     crc_heads: u32,
     joints: Vec<u16>,
+    /// Joint confidences, as f32 bits (compared exactly).
+    confidence_bits: Vec<u32>,
 }
 
 /// The firmware's per-window lines: results and instructions.
@@ -414,12 +416,19 @@ fn firmware_windows(lines: &[String]) -> Vec<(WindowResult, String)> {
                 .unwrap_or_else(|| panic!("window {i}: no line with {key}"))
         };
         let res = find("crc_heads=");
-        let joints = find(" joints=[")
-            .split_once(" joints=[")
-            .and_then(|(_, j)| j.strip_suffix(']'))
-            .expect("a joints list")
-            .split(',')
-            .map(|v| v.trim().parse().expect("a joint coordinate"))
+        let list = |key: &str| -> Vec<u64> {
+            find(key)
+                .split_once(key)
+                .and_then(|(_, j)| j.strip_suffix(']'))
+                .expect("a list")
+                .split(',')
+                .map(|v| v.trim().parse().expect("a number"))
+                .collect()
+        };
+        let joints = list(" joints=[").into_iter().map(|v| v as u16).collect();
+        let confidence_bits = list(" confidence_bits=[")
+            .into_iter()
+            .map(|v| v as u32)
             .collect();
         out.push((
             WindowResult {
@@ -431,6 +440,7 @@ fn firmware_windows(lines: &[String]) -> Vec<(WindowResult, String)> {
                 crc_input: field(res, "crc_input"),
                 crc_heads: field(res, "crc_heads"),
                 joints,
+                confidence_bits,
             },
             find(" instructions ").clone(),
         ));
@@ -448,9 +458,10 @@ fn host_windows(events: &[Event], blob: &[u8]) -> Vec<WindowResult> {
     let mut storage = Box::new(Davis346Storage::new());
     let raster = Rasterizer::new(RasterConfig::DAVIS346, &mut *storage).unwrap();
     let plan = Plan::new(&model, Kernels::best(), scratch_words(&model)).unwrap();
-    let mut session = Session::new(raster, Estimator::new(plan, POINTS, SEED));
-    let mut indices = vec![0u32; POINTS];
-    let mut rows = vec![[0f32; FEATURES]; POINTS];
+    let n = model.input_points(); // the firmware's POINTS (build.rs)
+    let mut session = Session::new(raster, Estimator::new(plan, n, SEED));
+    let mut indices = vec![0u32; n];
+    let mut rows = vec![[0f32; FEATURES]; n];
     let mut scratch = vec![0i32; plan.scratch_words()];
     let (mut out_x, mut out_y) = (vec![0i32; j * w], vec![0i32; j * h]);
     let mut joints = vec![Joint2d::default(); j];
@@ -462,6 +473,7 @@ fn host_windows(events: &[Event], blob: &[u8]) -> Vec<WindowResult> {
         y: &mut out_y,
         joints: &mut joints,
     };
+    let scales = model.head_scales().expect("a version 3 blob");
     let mut out = Vec::new();
     // Event by event, unlike the firmware's batches: windows do not depend on batching.
     for e in events {
@@ -469,6 +481,8 @@ fn host_windows(events: &[Event], blob: &[u8]) -> Vec<WindowResult> {
             .feed(std::slice::from_ref(e), &mut ws, &mut (), |e| {
                 let s = e.window.summary();
                 let d = e.digest();
+                let mut confidence = vec![0f32; e.joints.len()];
+                e.confidence(scales, &mut confidence).unwrap();
                 out.push(WindowResult {
                     events: s.events,
                     points: e.window.len(),
@@ -478,6 +492,7 @@ fn host_windows(events: &[Event], blob: &[u8]) -> Vec<WindowResult> {
                     crc_input: d.input,
                     crc_heads: d.heads,
                     joints: e.joints.iter().flat_map(|p| [p.x, p.y]).collect(),
+                    confidence_bits: confidence.iter().map(|c| c.to_bits()).collect(),
                 });
                 Ok::<(), PipelineError>(())
             })
@@ -543,7 +558,8 @@ fn firmware_matches_the_host_core_under_qemu() {
     let model = Model::parse(blob.bytes()).unwrap();
     for (i, (_, instr)) in firmware.iter().enumerate() {
         let infer: u64 = field(instr, "infer");
-        let macs = model.macs_per_point() * POINTS as u64 + model.macs_after_pooling();
+        let macs =
+            model.macs_per_point() * model.input_points() as u64 + model.macs_after_pooling();
         eprintln!(
             "window {i}: rasterize {:.1} instructions/event, infer {:.3} instructions/MAC \
              overall, {} per point-layer MAC",

@@ -38,22 +38,20 @@ use static_cell::ConstStaticCell;
 
 use crate::input::{EventSource, EvsReader, StreamError};
 
-/// Network input points per window (the paper's N; `evpose quantize` samples the same).
-const POINTS: usize = 2048;
 /// Seed of the point sampler: one generator for the whole stream, as `evpose` uses it.
 const SEED: u64 = 0;
 /// Events read from the source per batch (one DMA half-buffer on a board).
 const BATCH: usize = 256;
-// JOINTS, WIDTH, HEIGHT and SCRATCH_WORDS of the embedded model, computed by build.rs with
-// `evpose_core::Model::parse` and `scratch_words` (and checked again at boot).
+// JOINTS, WIDTH, HEIGHT, SCRATCH_WORDS and POINTS of the embedded model, computed by build.rs
+// with `evpose_core::Model::parse` and `scratch_words` (and checked again at boot).
 include!(concat!(env!("OUT_DIR"), "/model_dims.rs"));
 
 /// A model blob at a 16-byte-aligned address (`Model::parse` reads its arrays in place).
 #[repr(C, align(16))]
 struct Aligned<T>(T);
 
-static MODEL: Aligned<[u8; include_bytes!("../../assets/pointnet-small.evq").len()]> =
-    Aligned(*include_bytes!("../../assets/pointnet-small.evq"));
+static MODEL: Aligned<[u8; include_bytes!("../../models/mcu.evq").len()]> =
+    Aligned(*include_bytes!("../../models/mcu.evq"));
 static EVENTS: [u8; include_bytes!("../assets/street-00-02.evs").len()] =
     *include_bytes!("../assets/street-00-02.evs");
 
@@ -102,6 +100,9 @@ enum Error {
     Stream(StreamError),
     Infer(InferError),
     Pipeline(PipelineError),
+    /// The blob carries no logit scales for its int8 heads (a version 1 or 2 blob), which joint
+    /// confidences need.
+    NoHeadScales,
 }
 
 macro_rules! from {
@@ -229,6 +230,7 @@ fn run(per_tick: u64) -> Result<(), Error> {
             scratch_words: scratch_needed,
         });
     }
+    let scales = model.head_scales().ok_or(Error::NoHeadScales)?;
     let t = clock::ticks();
     let plan = Plan::new(&model, Kernels::best(), SCRATCH_WORDS)?;
     let prepare = clock.since(t);
@@ -287,8 +289,7 @@ fn run(per_tick: u64) -> Result<(), Error> {
         // The whole batch at once: the session rasterizes with `extend` (the same windows as
         // pushing event by event) and estimates every window the batch closes.
         session.feed(&events[..n], &mut ws, &mut &clock, |e| {
-            report(&e, &clock, one_point, &model);
-            Ok::<(), Error>(())
+            report(&e, &clock, one_point, &model, scales)
         })?;
     }
     let r = session.rasterizer();
@@ -304,8 +305,15 @@ fn run(per_tick: u64) -> Result<(), Error> {
     Ok(())
 }
 
-/// Prints one window's results, digests and instructions per stage.
-fn report(e: &Estimate<'_>, clock: &StageClock, one_point: u64, model: &Model<'_>) {
+/// Prints one window's results, digests, joint confidences (their f32 bits, so that the host
+/// can compare them exactly) and instructions per stage.
+fn report(
+    e: &Estimate<'_>,
+    clock: &StageClock,
+    one_point: u64,
+    model: &Model<'_>,
+    scales: [f32; 2],
+) -> Result<(), Error> {
     let s = e.window.summary();
     let d = e.digest();
     println!(
@@ -324,14 +332,25 @@ fn report(e: &Estimate<'_>, clock: &StageClock, one_point: u64, model: &Model<'_
         pair.copy_from_slice(&[j.x, j.y]);
     }
     println!("window={=u32} joints={}", e.index, xy);
+    let t = clock::ticks();
+    let mut confidence = [0f32; JOINTS];
+    e.confidence(scales, &mut confidence)
+        .map_err(|d| Error::Pipeline(PipelineError::Decode(d)))?;
+    let confidence_instructions = clock.since(t);
+    println!(
+        "window={=u32} confidence_bits={}",
+        e.index,
+        confidence.map(f32::to_bits)
+    );
     let [rasterize, sample, infer, decode, input] = clock.take();
     let n = e.input.len() as u64;
     let per_point = infer.saturating_sub(one_point) / (n - 1).max(1);
     let per_mac = per_point as f32 / model.macs_per_point() as f32;
     println!(
-        "window={=u32} instructions input={=u64} rasterize={=u64} sample={=u64} infer={=u64} decode={=u64} infer_one_point={=u64} per_point={=u64} per_point_layer_mac={=f32}",
-        e.index, input, rasterize, sample, infer, decode, one_point, per_point, per_mac
+        "window={=u32} instructions input={=u64} rasterize={=u64} sample={=u64} infer={=u64} decode={=u64} confidence={=u64} infer_one_point={=u64} per_point={=u64} per_point_layer_mac={=f32}",
+        e.index, input, rasterize, sample, infer, decode, confidence_instructions, one_point, per_point, per_mac
     );
+    Ok(())
 }
 
 #[exception]

@@ -5,12 +5,12 @@
 use crate::io::{self, EventReader, OpenOptions};
 use crate::model::AlignedBlob;
 
-/// The default model of `evpose pose`: the small reference network (random weights),
-/// quantized with `evpose quantize` on street windows 00–02 (`assets/pointnet-small.evq`).
-pub const DEFAULT_MODEL: &[u8] = include_bytes!("../../assets/pointnet-small.evq");
+/// The default model of `evpose pose` and of the firmware: the trained MCU PointNet
+/// (`models/mcu.evq`, int8, 256 points; `train/recipe.sh` makes it from synthetic data).
+pub const DEFAULT_MODEL: &[u8] = include_bytes!("../../models/mcu.evq");
 
 /// Where [`DEFAULT_MODEL`] comes from, for messages.
-pub const DEFAULT_MODEL_NAME: &str = "the bundled model (assets/pointnet-small.evq)";
+pub const DEFAULT_MODEL_NAME: &str = "the bundled model (models/mcu.evq)";
 
 /// [`DEFAULT_MODEL`], aligned (validated where it is parsed, as any blob).
 pub fn default_blob() -> AlignedBlob {

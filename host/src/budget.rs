@@ -140,6 +140,8 @@ pub struct Budget {
     pub model: ModelBudget,
     /// The image, when one was measured.
     pub image: Option<ImageBudget>,
+    /// Estimated latency per target ([`crate::latency`]).
+    pub latency: Vec<crate::latency::Latency>,
 }
 
 /// Where the firmware's release build puts its ELF, relative to the repository root.
@@ -451,11 +453,13 @@ mod tests {
         let blob = crate::assets::default_blob();
         let m = Model::parse(blob.bytes()).unwrap();
         let b = model_budget(&m, 2048);
-        assert_eq!(b.macs_total, 76_960 * 2048 + b.macs_after_pooling);
+        // The bundled MCU model: 5·16 + 16·16 + 16·32 + 32·64 + 128·128 MACs per point.
+        assert_eq!(b.macs_per_point, 19_280);
+        assert_eq!(b.macs_total, 19_280 * 2048 + b.macs_after_pooling);
         assert!(b.block_scratch_words > b.scratch_words);
         // The packed copy holds every int8 point-layer weight, padded to whole 64 × 4 blocks
-        // (the small model's widths are multiples of 32: at most twice the rows), plus up to
-        // 63 bytes of alignment.
+        // (conv2's 16 rows become 64, but conv5's 128 × 128 dominate: under twice the bytes),
+        // plus up to 63 bytes of alignment.
         let point_i8: u64 = b.layers[1..m.point_layer_count()]
             .iter()
             .map(|l| l.weight_bytes)

@@ -11,7 +11,7 @@
 //! | 3-D | [`dhp19`] (calibration), [`triangulate`] (window pairing, 3-D joints) |
 //! | ground truth | [`dataset`] (labelled windows for training), [`eval`] (MPJPE 2-D and 3-D) |
 //! | models | [`model`] (blobs, quantization; ONNX and tract with feature `onnx`), [`inputs`], [`parity`] |
-//! | costs | [`budget`] (MACs, bytes, firmware images), [`bench`] |
+//! | costs | [`budget`] (MACs, bytes, firmware images), [`latency`] (MCU latency from measured instruction counts), [`bench`] |
 //! | pictures | [`render`] (event frames with skeletons) |
 //! | files | [`array`] (`.npy`), [`assets`] (what the binary embeds) |
 //!
@@ -30,6 +30,7 @@ pub mod dhp19;
 pub mod eval;
 pub mod inputs;
 pub mod io;
+pub mod latency;
 pub mod model;
 pub mod parity;
 pub mod pipeline;

@@ -347,6 +347,21 @@ fn pose_runs_the_whole_pipeline_with_the_default_model() {
     for j in joints {
         assert!(j[0].as_u64().unwrap() < 346 && j[1].as_u64().unwrap() < 260);
     }
+    // The bundled model carries its logit scales: 13 confidences in [0, 1]. The window is a
+    // street scene without a person; its mean confidence is below the no-body threshold.
+    let conf: Vec<f64> = lines[0]["confidence"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_f64().unwrap())
+        .collect();
+    assert_eq!(conf.len(), 13);
+    assert!(conf.iter().all(|c| (0.0..=1.0).contains(c)), "{conf:?}");
+    let mean = conf.iter().sum::<f64>() / 13.0;
+    assert!(
+        mean < f64::from(evpose_host::pose::NO_BODY_CONFIDENCE),
+        "{mean}"
+    );
     // The same seed gives the same joints; the f32 model gives joints of the same shape.
     assert_eq!(
         evpose(&[
@@ -366,6 +381,40 @@ fn pose_runs_the_whole_pipeline_with_the_default_model() {
         "--json",
     ]);
     assert_eq!(f.lines().count(), 1);
+}
+
+#[test]
+fn budget_estimates_latency_per_target() {
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/mcu.evq");
+    let v = json(&[
+        "budget",
+        "--model",
+        s(&model),
+        "--target",
+        "cortex-m7@480",
+        "cortex-m4@168",
+        "--json",
+    ]);
+    // The blob records its point count; the latency uses it.
+    assert_eq!(v["model"]["points"], 256);
+    let l = v["latency"].as_array().unwrap();
+    assert_eq!(l.len(), 2);
+    assert_eq!(l[0]["target"], "cortex-m7@480");
+    let (m7, m4) = (l[0]["ms"].as_f64().unwrap(), l[1]["ms"].as_f64().unwrap());
+    assert!(m4 > m7 * 480.0 / 168.0, "{m7} {m4}");
+    for t in l {
+        let ms = t["ms"].as_f64().unwrap();
+        assert_eq!(t["real_time"], ms <= 36.0);
+        assert!(t["instructions"].as_f64().unwrap() > t["infer"].as_f64().unwrap());
+    }
+    assert!(evpose_err(&[
+        "budget",
+        "--model",
+        s(&model),
+        "--target",
+        "cortex-a53@1000"
+    ])
+    .contains("unknown core"));
 }
 
 #[test]
@@ -410,7 +459,7 @@ fn infer_engines_write_their_outputs() {
             vec![13, 260]
         );
     }
-    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/pointnet-small.evq");
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/mcu.evq");
     let (x, y) = (tmp("i8-x.npy"), tmp("i8-y.npy"));
     evpose(&[
         "infer",

@@ -7,6 +7,7 @@ use clap::Args;
 use evpose_core::model::Model;
 
 use crate::budget::{default_elf, image_budget, model_budget, Budget, ImageBudget, ModelBudget};
+use crate::latency::{self, Latency, Measured, Target, REAL_TIME_MS};
 use crate::model;
 
 /// Arguments of `evpose budget`.
@@ -15,12 +16,21 @@ pub struct BudgetArgs {
     /// The model blob (`.evq`, int8 or f32) or an `.onnx` export (imported as f32).
     #[arg(long)]
     pub model: PathBuf,
-    /// Points per inference, for the total MACs.
-    #[arg(long, default_value_t = evpose_core::pipeline::DEFAULT_POINTS as u64)]
-    pub points: u64,
+    /// Points per inference, for the total MACs and the latency (default: the `N` the blob
+    /// records, else 2,048).
+    #[arg(long)]
+    pub points: Option<u64>,
     /// Firmware image (ELF) to measure (default: the firmware's release build, if present).
     #[arg(long)]
     pub elf: Option<PathBuf>,
+    /// Estimate one window's latency on these targets (CORE@MHZ: cortex-m7@480,
+    /// cortex-m4@168, cortex-m33@160, …) from the instruction counts the firmware measured
+    /// under QEMU (`firmware/measured.json`) and a stated cycles-per-instruction assumption.
+    #[arg(long, num_args = 1.., default_value = "cortex-m7@480")]
+    pub target: Vec<Target>,
+    /// Events per window, for the rasterization cost.
+    #[arg(long, default_value_t = u64::from(evpose_core::raster::DEFAULT_WINDOW_EVENTS))]
+    pub window_events: u64,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -30,17 +40,29 @@ pub struct BudgetArgs {
 pub fn budget(a: &BudgetArgs) -> Result<()> {
     let blob = model::load_blob(&a.model)?;
     let m = Model::parse(blob.bytes()).map_err(|e| anyhow!("{}: {e}", a.model.display()))?;
-    let mb = model_budget(&m, a.points);
+    let points = a.points.unwrap_or(m.input_points() as u64);
+    let mb = model_budget(&m, points);
     let elf = match &a.elf {
         Some(p) => Some(p.clone()),
         None => Some(default_elf()).filter(|p| p.exists()),
     };
     let image = elf.as_deref().map(image_budget).transpose()?;
-    let b = Budget { model: mb, image };
+    let measured = latency::measured()?;
+    let latency = a
+        .target
+        .iter()
+        .map(|&t| latency::estimate(&mb, a.window_events, &measured, t))
+        .collect();
+    let b = Budget {
+        model: mb,
+        image,
+        latency,
+    };
     if a.json {
         println!("{}", serde_json::to_string_pretty(&b)?);
     } else {
         print_model(&a.model, &b.model);
+        print_latency(&b.latency, &measured, a.window_events, b.model.points);
         match &b.image {
             Some(i) => print_image(i),
             None => println!(
@@ -103,6 +125,40 @@ fn print_model(path: &Path, m: &ModelBudget) {
         m.macs_total,
         m.macs_total as f64 / 1e9
     );
+}
+
+fn print_latency(list: &[Latency], k: &Measured, events: u64, points: u64) {
+    println!(
+        "\nlatency per {events}-event window at {points} points, from instructions measured \
+         under QEMU (commit {}, model {}: {:.1}/event, {:.3}/point-layer MAC, {:.3}/MAC after \
+         pooling); cycles = instructions x CPI (assumed):",
+        k.commit,
+        k.model,
+        k.instructions_per_event,
+        k.instructions_per_point_mac,
+        k.instructions_per_vector_mac
+    );
+    println!(
+        "{:<18} {:>4} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7}  {:>8}  verdict ({REAL_TIME_MS} ms)   max points",
+        "target", "CPI", "input", "raster", "sample", "infer", "decode", "conf", "ms"
+    );
+    let m = |v: f64| format!("{:.2}M", v / 1e6);
+    for l in list {
+        println!(
+            "{:<18} {:>4} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7}  {:>8.2}  {:<20}  {}",
+            l.target,
+            l.cpi,
+            m(l.input),
+            m(l.rasterize),
+            m(l.sample),
+            m(l.infer),
+            m(l.decode),
+            m(l.confidence),
+            l.ms,
+            if l.real_time { "real time" } else { "too slow" },
+            l.max_real_time_points
+        );
+    }
 }
 
 fn print_image(i: &ImageBudget) {

@@ -1,0 +1,271 @@
+//! MCU latency from measured instruction counts: `evpose budget --target cortex-m7@480`.
+//!
+//! The firmware counts the instructions of every pipeline stage under QEMU (`-icount`, exact to
+//! one SysTick tick; `tests/firmware_qemu.rs`). Those counts, reduced to per-unit costs
+//! (instructions per rasterized event, per point-layer MAC, per MAC after pooling, per sampled
+//! point, per SimDR bin decoded), are stored with the commit and model they were measured on in
+//! `firmware/measured.json`, embedded here. A model's latency on a target is then
+//! `instructions × CPI / f`, with a stated cycles-per-instruction assumption per core: QEMU
+//! counts instructions, not cycles, and no cycle-accurate model of these cores is at hand.
+//!
+//! | core | CPI assumed | why |
+//! |---|---|---|
+//! | Cortex-M7 | 1.0 | dual-issue, 6-stage; the int8 loops are load + SMLAD pairs from TCM: one per cycle, no credit taken for dual issue |
+//! | Cortex-M4 | 1.25 | single-issue, 3-stage; loads take 2 cycles, one load per 2–3 instructions in the kernels |
+//! | Cortex-M33 | 1.2 | single-issue, 3-stage like the M4, with the DSP extension (assumed present) |
+//!
+//! The M4 and M33 run the same Thumb-2 + DSP instructions the M7 image uses, so the measured
+//! instruction counts carry over; caches and flash wait states are not modelled.
+
+use anyhow::{anyhow, bail, Result};
+use serde::{Deserialize, Serialize};
+
+use crate::budget::ModelBudget;
+
+/// The paper's real-time criterion: the shortest DHP19 test window spans about 36 ms.
+pub const REAL_TIME_MS: f64 = 36.0;
+
+/// Per-unit instruction costs the firmware measured under QEMU.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Measured {
+    /// Commit of the firmware that was measured.
+    pub commit: String,
+    /// The model it ran.
+    pub model: String,
+    /// Events per window in the measurement.
+    pub window_events: u64,
+    /// Reading the firmware's input stream (`EVS1` words → events), instructions per event.
+    pub instructions_per_input_event: f64,
+    /// Rasterization, instructions per event (window close included).
+    pub instructions_per_event: f64,
+    /// Point layers, instructions per MAC (`per_point / macs_per_point`).
+    pub instructions_per_point_mac: f64,
+    /// After pooling (FC layers and heads), instructions per MAC.
+    pub instructions_per_vector_mac: f64,
+    /// Sampling, instructions per window whatever `N` (drawing from the window's `M` points;
+    /// measured at M ≈ 2,900).
+    pub sample_instructions_per_window: f64,
+    /// Sampling, instructions per sampled point.
+    pub instructions_per_sampled_point: f64,
+    /// SimDR decoding, instructions per logit.
+    pub instructions_per_bin: f64,
+    /// Joint confidences ([`evpose_core::confidence`]), instructions per logit.
+    pub confidence_instructions_per_bin: f64,
+}
+
+/// The measurement shipped with this build (`firmware/measured.json`).
+pub fn measured() -> Result<Measured> {
+    serde_json::from_str(include_str!("../../firmware/measured.json"))
+        .map_err(|e| anyhow!("firmware/measured.json: {e}"))
+}
+
+/// A Cortex-M core this estimate knows.
+#[derive(Clone, Copy, Debug, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum Core {
+    /// Cortex-M7.
+    CortexM7,
+    /// Cortex-M4 (with FPU and DSP).
+    CortexM4,
+    /// Cortex-M33 (with the DSP extension).
+    CortexM33,
+}
+
+impl Core {
+    /// Cycles per instruction assumed (module documentation).
+    pub fn cpi(self) -> f64 {
+        match self {
+            Core::CortexM7 => 1.0,
+            Core::CortexM4 => 1.25,
+            Core::CortexM33 => 1.2,
+        }
+    }
+    /// The name `--target` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Core::CortexM7 => "cortex-m7",
+            Core::CortexM4 => "cortex-m4",
+            Core::CortexM33 => "cortex-m33",
+        }
+    }
+}
+
+/// A core at a clock.
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct Target {
+    /// The core.
+    pub core: Core,
+    /// Clock, MHz.
+    pub mhz: f64,
+}
+
+impl std::str::FromStr for Target {
+    type Err = anyhow::Error;
+    /// `cortex-m7@480`, `cortex-m4@168`, `cortex-m33@160` (core, then the clock in MHz).
+    fn from_str(s: &str) -> Result<Self> {
+        let (core, mhz) = s
+            .split_once('@')
+            .ok_or_else(|| anyhow!("target {s:?}: expected CORE@MHZ, e.g. cortex-m7@480"))?;
+        let core = [Core::CortexM7, Core::CortexM4, Core::CortexM33]
+            .into_iter()
+            .find(|c| c.name() == core.to_ascii_lowercase())
+            .ok_or_else(|| {
+                anyhow!("target {s:?}: unknown core {core:?} (cortex-m7, cortex-m4, cortex-m33)")
+            })?;
+        let mhz: f64 = mhz
+            .parse()
+            .map_err(|_| anyhow!("target {s:?}: clock {mhz:?} is not a number of MHz"))?;
+        if !(mhz.is_finite() && mhz > 0.0) {
+            bail!("target {s:?}: the clock must be positive");
+        }
+        Ok(Target { core, mhz })
+    }
+}
+
+impl std::fmt::Display for Target {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}@{}", self.core.name(), self.mhz)
+    }
+}
+
+/// One window's estimated cost on a target.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct Latency {
+    /// The target.
+    pub target: String,
+    /// Cycles per instruction assumed.
+    pub cpi: f64,
+    /// Instructions per window, by stage: reading the input.
+    pub input: f64,
+    /// Rasterization.
+    pub rasterize: f64,
+    /// Sampling.
+    pub sample: f64,
+    /// Inference.
+    pub infer: f64,
+    /// Decoding.
+    pub decode: f64,
+    /// Joint confidences.
+    pub confidence: f64,
+    /// All stages.
+    pub instructions: f64,
+    /// Milliseconds per window.
+    pub ms: f64,
+    /// Whether `ms` ≤ [`REAL_TIME_MS`].
+    pub real_time: bool,
+    /// Largest point count whose window meets [`REAL_TIME_MS`] (0: none does).
+    pub max_real_time_points: u64,
+}
+
+/// The cost of one window of `window_events` events through the model of `m` (at `m.points`
+/// points) on `target`, from the per-unit costs `k`.
+pub fn estimate(m: &ModelBudget, window_events: u64, k: &Measured, target: Target) -> Latency {
+    let per_point =
+        k.instructions_per_point_mac * m.macs_per_point as f64 + k.instructions_per_sampled_point;
+    let bins = (m.joints * (m.width + m.height)) as f64;
+    let input = k.instructions_per_input_event * window_events as f64;
+    let rasterize = k.instructions_per_event * window_events as f64;
+    let fixed = input
+        + rasterize
+        + k.sample_instructions_per_window
+        + k.instructions_per_vector_mac * m.macs_after_pooling as f64
+        + (k.instructions_per_bin + k.confidence_instructions_per_bin) * bins;
+    let instructions = fixed + per_point * m.points as f64;
+    let cycles_per_ms = target.mhz * 1e3 / target.core.cpi();
+    let ms = instructions / cycles_per_ms;
+    let spare = REAL_TIME_MS * cycles_per_ms - fixed;
+    let max_real_time_points = if spare > 0.0 && per_point > 0.0 {
+        (spare / per_point).floor() as u64
+    } else {
+        0
+    };
+    Latency {
+        target: target.to_string(),
+        cpi: target.core.cpi(),
+        input,
+        rasterize,
+        sample: k.sample_instructions_per_window
+            + k.instructions_per_sampled_point * m.points as f64,
+        infer: k.instructions_per_point_mac * (m.macs_per_point * m.points) as f64
+            + k.instructions_per_vector_mac * m.macs_after_pooling as f64,
+        decode: k.instructions_per_bin * bins,
+        confidence: k.confidence_instructions_per_bin * bins,
+        instructions,
+        ms,
+        real_time: ms <= REAL_TIME_MS,
+        max_real_time_points,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn targets_parse_and_reject() {
+        let t: Target = "cortex-m7@480".parse().unwrap();
+        assert_eq!((t.core, t.mhz), (Core::CortexM7, 480.0));
+        assert_eq!(t.to_string(), "cortex-m7@480");
+        for bad in ["cortex-m7", "cortex-m0@48", "cortex-m4@fast", "cortex-m4@0"] {
+            assert!(bad.parse::<Target>().is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn shipped_measurement_parses() {
+        let k = measured().unwrap();
+        assert!(k.instructions_per_point_mac > 0.0 && k.instructions_per_event > 0.0);
+    }
+
+    /// The estimate adds up the stages, scales with the clock and the CPI, and the largest
+    /// real-time point count is the boundary.
+    #[test]
+    fn estimate_adds_up_and_finds_the_boundary() {
+        let k = Measured {
+            commit: "test".into(),
+            model: "test".into(),
+            window_events: 100,
+            instructions_per_input_event: 1.0,
+            instructions_per_event: 10.0,
+            instructions_per_point_mac: 2.0,
+            instructions_per_vector_mac: 1.0,
+            sample_instructions_per_window: 50.0,
+            instructions_per_sampled_point: 5.0,
+            instructions_per_bin: 1.0,
+            confidence_instructions_per_bin: 3.0,
+        };
+        let blob = crate::assets::default_blob();
+        let model = evpose_core::Model::parse(blob.bytes()).unwrap();
+        let m = crate::budget::model_budget(&model, 256);
+        let t: Target = "cortex-m7@480".parse().unwrap();
+        let l = estimate(&m, 7500, &k, t);
+        let bins = (m.joints * (m.width + m.height)) as f64;
+        let want = 7500.0 * 11.0
+            + 50.0
+            + 256.0 * 5.0
+            + 2.0 * (m.macs_per_point * 256) as f64
+            + m.macs_after_pooling as f64
+            + 4.0 * bins;
+        assert!(
+            (l.instructions - want).abs() < 1e-6,
+            "{} vs {want}",
+            l.instructions
+        );
+        let sum = l.input + l.rasterize + l.sample + l.infer + l.decode + l.confidence;
+        assert!((sum - want).abs() < 1e-6);
+        assert!((l.ms - want / 480e3).abs() < 1e-9);
+        let m4 = estimate(&m, 7500, &k, "cortex-m4@240".parse().unwrap());
+        assert!((m4.ms - want * 1.25 / 240e3).abs() < 1e-9);
+        // At the largest real-time count the window fits in 36 ms; one point more does not.
+        let at = |n: u64| {
+            let mut mb = m.clone();
+            mb.points = n;
+            estimate(&mb, 7500, &k, t).ms
+        };
+        let n = l.max_real_time_points;
+        assert!(
+            n > 0 && at(n) <= REAL_TIME_MS && at(n + 1) > REAL_TIME_MS,
+            "{n}"
+        );
+    }
+}
