@@ -3,17 +3,17 @@
 # Every step is seeded; the figures in README's "Trained models" come from this script.
 #
 # Usage: bash train/recipe.sh WORKDIR [STEP...]
-#   steps: data mcu paper sweep dgcnn point-transformer quantize eval (default: all, in order)
+#   steps: data mcu paper dgcnn point-transformer quantize eval (default: all, in order)
 # Needs: a release `evpose` (built here if absent), and train/requirements.txt installed
 # (python: $PYTHON, default python3). WORKDIR holds ~2.5 GB of recordings and datasets.
 # On the 2-core development VM (AMD EPYC, no GPU), measured: data 11 min (6 + 12 subjects,
-# 612 recordings, 43,909 training samples), mcu 12 min, paper ~60 min, sweep 10 min, dgcnn and
-# point-transformer ~12 min each (their step budgets).
+# 612 recordings, 43,909 training samples), mcu 13 min, paper 45 min, dgcnn 10 min and
+# point-transformer 8 min (their step budgets), quantize and eval a few minutes.
 set -euo pipefail
 repo=$(cd "$(dirname "$0")/.." && pwd)
 work=${1:?usage: train/recipe.sh WORKDIR [STEP...]}
 shift
-steps=${*:-data mcu paper sweep dgcnn point-transformer quantize eval}
+steps=${*:-data mcu paper dgcnn point-transformer quantize eval}
 py=${PYTHON:-python3}
 evpose=$repo/target/release/evpose
 [ -x "$evpose" ] || (cd "$repo" && cargo build --release --bin evpose)
@@ -26,7 +26,7 @@ train() {
 }
 
 # Points per input of each model (its test set: ds-test-N).
-test_set() { case $1 in paper) echo 2048 ;; mcu-w8-n512) echo 512 ;; mcu-w16-n128) echo 128 ;; *) echo 256 ;; esac; }
+test_set() { case $1 in paper) echo 2048 ;; *) echo 256 ;; esac; }
 
 for step in $steps; do
   echo "== $step"
@@ -41,7 +41,7 @@ for step in $steps; do
     "$evpose" dataset --recordings rec-train --out ds-train --split train
     "$evpose" dataset --recordings rec-train2 --out ds-train2 --split train
     "$evpose" dataset --recordings rec-val --out ds-val --split test
-    for n in 2048 512 256 128; do
+    for n in 2048 1024 512 256 128; do
       "$evpose" dataset --recordings rec-test --out ds-test-$n --points $n --split test
     done
     ;;
@@ -50,40 +50,42 @@ for step in $steps; do
       --lr-steps 8 10 --out mcu.onnx --log mcu.json
     ;;
   paper)
-    # Trained on 512 of the 2,048 stored points per sample (4x cheaper), exported at 2,048.
-    train --widths 64 64 128 256 1024 1024 128 --points 512 --export-points 2048 --epochs 3 \
-      --batch 16 --lr 5e-4 --lr-steps 2 --out paper.onnx --log paper.json
-    ;;
-  sweep)
-    # The accuracy/latency trade-off: narrower at more points, the same at fewer.
-    train --widths 8 8 16 32 64 64 32 --points 512 --epochs 6 --batch 32 --lr 1e-3 \
-      --lr-steps 4 5 --out mcu-w8-n512.onnx --log mcu-w8-n512.json
-    train --widths 16 16 32 64 128 128 32 --points 128 --epochs 6 --batch 32 --lr 1e-3 \
-      --lr-steps 4 5 --out mcu-w16-n128.onnx --log mcu-w16-n128.json
+    # Trained on 512 of the 2,048 stored points per sample (4x cheaper), exported at 2,048:
+    # one epoch at 5e-4, then 2,000 steps (73 % of an epoch) at 5e-5 from its weights; what
+    # fitted in the session's CPU time (25 + 20 minutes on 2 cores).
+    train --widths 64 64 128 256 1024 1024 128 --points 512 --export-points 2048 --epochs 1 \
+      --batch 16 --lr 5e-4 --lr-steps --out paper-epoch1.onnx --log paper-epoch1.json
+    train --widths 64 64 128 256 1024 1024 128 --points 512 --export-points 2048 --epochs 1 \
+      --steps 2000 --batch 16 --lr 5e-5 --lr-steps --init paper-epoch1.pt --seed 2 \
+      --out paper.onnx --log paper.json
     ;;
   dgcnn | point-transformer)
-    # What two CPU cores allow: ~12 minutes each (1,300 and 430 steps of 16 samples).
-    steps=1300
-    [ "$step" = point-transformer ] && steps=430
+    # What the session's two CPU cores allowed: ~6 minutes each (650 and 200 steps of 16).
+    steps=650
+    [ "$step" = point-transformer ] && steps=200
     train --backbone "$step" --widths 32 32 64 128 512 512 64 --k 16 --points 256 --epochs 1 \
       --steps $steps --batch 16 --lr 1e-3 --lr-steps --out "$step.onnx" --log "$step.json"
     ;;
   quantize)
-    for m in mcu paper mcu-w8-n512 mcu-w16-n128; do
-      [ -f $m.onnx ] || continue
-      n=$(test_set $m)
-      "$evpose" quantize --model $m.onnx --calib ds-train --max-windows 256 --points $n --out $m.evq \
-        --onnx-out $m.q.onnx
-    done
+    # The MCU model with one activation scale per layer, the paper-width one with per-channel
+    # scales on its first layer (README: which loses less for each).
+    "$evpose" quantize --model mcu.onnx --calib ds-train --max-windows 256 --out mcu.evq \
+      --onnx-out mcu.q.onnx
+    "$evpose" quantize --model paper.onnx --calib ds-train --max-windows 128 \
+      --first-layer-scales channel --out paper.evq --onnx-out paper.q.onnx
     ;;
   eval)
-    for m in mcu paper mcu-w8-n512 mcu-w16-n128 dgcnn point-transformer; do
-      [ -f $m.onnx ] || continue
+    for m in mcu paper dgcnn point-transformer; do
       n=$(test_set $m)
       "$evpose" eval --data ds-test-$n --model $m.onnx --engine tract --json eval-$m-tract.json
       [ -f $m.evq ] && "$evpose" eval --data ds-test-$n --model $m.evq --engine i8 --json eval-$m-i8.json
     done
     "$evpose" eval --data ds-test-2048 --baseline ds-train --json eval-baseline.json
+    "$evpose" eval --data ds-test-256 --model mcu.evq --smooth --json eval-mcu-smooth.json
+    # The MCU model's accuracy against its point count (latency: evpose budget --points N).
+    for n in 128 512 1024 2048; do
+      "$evpose" eval --data ds-test-$n --model mcu.evq --json eval-mcu-n$n.json
+    done
     ;;
   *) echo "unknown step $step" >&2; exit 2 ;;
   esac
