@@ -1,11 +1,13 @@
 //! evpose on a Cortex-M7, end to end: events → rasterization → sampling → int8 PointNet → SimDR.
 //!
-//! The image embeds an int8 model blob (`assets/pointnet-small.evq` at the repository root, the default model of `evpose pose`) and 22,500 events of the
-//! DAVIS346 street recording (`assets/street-00-02.evs`, three 7,500-event windows). It streams
-//! the events through the core's rasterizer in DMA-sized batches, samples each window to 2,048
-//! points with a fixed seed, runs the int8 engine, decodes the joints, and prints per window,
-//! over defmt (semihosting under QEMU): the joints, CRC-32 checksums of the point cloud, of the
-//! network input and of the heads' int32 accumulators, and the instructions of every stage.
+//! The image embeds an int8 model blob (`models/mcu.evq` at the repository root, the trained MCU
+//! model and the default of `evpose pose`) and 22,500 events of the DAVIS346 street recording
+//! (`assets/street-00-02.evs`, three 7,500-event windows). It streams the events through the
+//! core's rasterizer in DMA-sized batches, samples each window to the blob's point count (256)
+//! with a fixed seed, runs the int8 engine, decodes the joints, and prints per window, over defmt
+//! (semihosting under QEMU): the joints, their confidences (f32 bits), CRC-32 checksums of the
+//! point cloud, of the network input and of the heads' int32 accumulators, and the instructions
+//! of every stage.
 //! The test suite (`tests/firmware_qemu.rs`) runs the same windows through the core on the
 //! host and asserts identical joints and checksums.
 //!

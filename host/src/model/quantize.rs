@@ -2,8 +2,9 @@
 //!
 //! Calibration runs the core's f32 engine over sampled event windows and records each layer's
 //! largest activation. Scales are symmetric (zero point 0):
-//! - activations: `max|y| / 127`, per channel for the point layers before the pooled one, per
-//!   layer output otherwise;
+//! - activations: `max|y| / 127` per layer output; the first point layer's per channel when
+//!   the calibrated ranges keep them apart ([`calibrate`] does, [`Ranges::per_tensor_first_layer`]
+//!   merges them; `evpose quantize --first-layer-scales`);
 //! - weights: one scale per output channel, after folding the input's per-channel scales into
 //!   the weights (a layer reading a concatenation of layers with different scales, or the pooled
 //!   `[max, mean]`, sees one int8 tensor with per-channel units);
