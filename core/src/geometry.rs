@@ -86,6 +86,11 @@ pub enum GeometryError {
     DegenerateRay,
     /// The two rays are parallel (see [`MIN_RAY_SINE`]): they have no unique closest point.
     ParallelRays,
+    /// Fewer than two views with a positive weight ([`triangulate_views`]).
+    TooFewViews {
+        /// Views with a positive weight.
+        views: usize,
+    },
     /// Joint and output slices of different lengths.
     Length {
         /// Joints from the first camera.
@@ -108,6 +113,10 @@ impl fmt::Display for GeometryError {
                 write!(f, "back-projected point coincides with the camera centre")
             }
             Self::ParallelRays => write!(f, "the two rays are parallel"),
+            Self::TooFewViews { views } => write!(
+                f,
+                "{views} view(s) with a positive weight; triangulation needs two"
+            ),
             Self::Length { a, b, out } => write!(
                 f,
                 "joint counts differ: {a} and {b} joints, {out} output slots"
@@ -284,14 +293,48 @@ pub fn triangulate(
     cam_b: &Camera,
     b: (f64, f64),
 ) -> Result<[f64; 3], GeometryError> {
-    let (na, nb) = (cam_a.ray(a)?, cam_b.ray(b)?);
-    if na.cross(&nb).norm() < MIN_RAY_SINE {
+    triangulate_views(&[(cam_a, a, 1.0), (cam_b, b, 1.0)])
+}
+
+/// Triangulates one joint seen by two or more cameras, each view `(camera, (u, v), weight)`
+/// weighted (e.g. by the joint's confidence in that camera): the point `p` that minimizes
+/// `Σᵢ wᵢ |(I − nᵢnᵢᵀ)(p − cᵢ)|²`, the weighted summed squared distances to the rays. With
+/// equal weights and two views it is [`triangulate`]; a heavier view pulls the point towards
+/// its ray (for two skew rays, along their common perpendicular, to the fraction
+/// `w_b / (w_a + w_b)` of the way from ray A's closest point).
+///
+/// Views with weight 0 are ignored. Fixed memory: no allocation for any number of views.
+///
+/// # Errors
+/// [`GeometryError::NonFinite`] for a negative or non-finite weight, [`GeometryError::TooFewViews`]
+/// when fewer than two views have a positive weight, those of [`Camera::back_project`] for any
+/// used point, [`GeometryError::DegenerateRay`], and [`GeometryError::ParallelRays`] when no two
+/// used rays are at least [`MIN_RAY_SINE`] apart.
+pub fn triangulate_views(views: &[(&Camera, (f64, f64), f64)]) -> Result<[f64; 3], GeometryError> {
+    if views.iter().any(|v| !(v.2.is_finite() && v.2 >= 0.0)) {
+        return Err(GeometryError::NonFinite);
+    }
+    let used = views.iter().filter(|v| v.2 > 0.0).count();
+    if used < 2 {
+        return Err(GeometryError::TooFewViews { views: used });
+    }
+    // Normal equations of min_p Σ wᵢ |(I − nᵢnᵢᵀ)(p − cᵢ)|²: R p = q.
+    let (mut r, mut q) = (Matrix3::zeros(), Vector3::zeros());
+    let mut first: Option<Vector3<f64>> = None;
+    let mut spread = false;
+    for &(cam, point, w) in views.iter().filter(|v| v.2 > 0.0) {
+        let n = cam.ray(point)?;
+        match first {
+            None => first = Some(n),
+            Some(f) => spread |= f.cross(&n).norm() >= MIN_RAY_SINE,
+        }
+        let proj = projector(&n);
+        r += proj * w;
+        q += proj * cam.centre * w;
+    }
+    if !spread {
         return Err(GeometryError::ParallelRays);
     }
-    // Normal equations of min_p Σ |(I − n nᵀ)(p − c)|²: R p = q.
-    let (proj_a, proj_b) = (projector(&na), projector(&nb));
-    let r = proj_a + proj_b;
-    let q = proj_a * cam_a.centre + proj_b * cam_b.centre;
     let p = r.cholesky().ok_or(GeometryError::ParallelRays)?.solve(&q);
     if !all_finite(p.iter()) {
         return Err(GeometryError::ParallelRays);
@@ -424,6 +467,63 @@ mod tests {
         assert!(seen > 500, "only {seen} points visible in both views");
         // f64 round-off through P⁺ and a 3 × 3 solve at a 1,000 mm scale: ~1e-12 relative.
         assert!(worst < 1e-9, "worst error {worst} mm");
+    }
+
+    #[test]
+    fn weighted_views_pull_towards_the_surer_ray() {
+        let (a, b) = pair();
+        let c = look_at([0.0, -3500.0, 1500.0], [0.0; 3], 250.0);
+        let x = [150.0, -80.0, 400.0];
+        let (ja, jb, jc) = (
+            a.project(x).unwrap(),
+            b.project(x).unwrap(),
+            c.project(x).unwrap(),
+        );
+        // Exact views: any positive weights, any number of views give the point.
+        for views in [
+            &[(&a, ja, 1.0), (&b, jb, 1.0)][..],
+            &[(&a, ja, 0.2), (&b, jb, 0.9), (&c, jc, 0.5)][..],
+        ] {
+            assert!(max_abs_diff(triangulate_views(views).unwrap(), x) < 1e-9);
+        }
+        // Equal weights are `triangulate`, bit for bit.
+        let jb_off = (jb.0 + 6.0, jb.1 - 4.0);
+        assert_eq!(
+            triangulate_views(&[(&a, ja, 1.0), (&b, jb_off, 1.0)]).unwrap(),
+            triangulate(&a, ja, &b, jb_off).unwrap()
+        );
+        // B's point is 7 px off, A's and C's are exact: trusting B less (weight 0.1 against
+        // 1) lands far closer (under half the error) to the truth than trusting all three equally, trusting B more
+        // lands farther. (With two views only the rays' common perpendicular is weighted.)
+        let err = |wb: f64| {
+            let p = triangulate_views(&[(&a, ja, 1.0), (&b, jb_off, wb), (&c, jc, 1.0)]).unwrap();
+            (0..3).map(|i| (p[i] - x[i]).powi(2)).sum::<f64>().sqrt()
+        };
+        let (unsure_b, equal, sure_b) = (err(0.1), err(1.0), err(10.0));
+        assert!(
+            unsure_b < 0.5 * equal && equal < sure_b,
+            "{unsure_b} {equal} {sure_b}"
+        );
+        // A zero weight drops a view; one view left is too few; weights must be finite, ≥ 0.
+        assert_eq!(
+            triangulate_views(&[(&a, ja, 1.0), (&b, jb_off, 0.0), (&c, jc, 1.0)]).unwrap(),
+            triangulate(&a, ja, &c, jc).unwrap()
+        );
+        assert_eq!(
+            triangulate_views(&[(&a, ja, 1.0), (&b, jb, 0.0)]),
+            Err(GeometryError::TooFewViews { views: 1 })
+        );
+        for w in [-1.0, f64::NAN, f64::INFINITY] {
+            assert_eq!(
+                triangulate_views(&[(&a, ja, 1.0), (&b, jb, w)]),
+                Err(GeometryError::NonFinite)
+            );
+        }
+        // The same ray twice is parallel.
+        assert_eq!(
+            triangulate_views(&[(&a, ja, 1.0), (&a, ja, 1.0)]),
+            Err(GeometryError::ParallelRays)
+        );
     }
 
     #[test]
