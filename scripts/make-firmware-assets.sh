@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Regenerates the firmware's event asset (firmware/assets/). The model the firmware embeds is
-# models/mcu.evq, shared with `evpose pose`, made by train/recipe.sh (steps mcu, quantize):
+# models/mcu.evq, shared with `evpose run`, made by train/recipe.sh (steps mcu, quantize):
 #
 #   street-00-02.evs     the first 22,500 events (three 7,500-event windows, which are the
 #                        bundled street-00..02) of the DAVIS346 street recording, in the EVS1

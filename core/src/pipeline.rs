@@ -8,7 +8,7 @@
 //! counters, the network input, a view of the SimDR heads and the decoded joints, all borrowed
 //! from the session and the workspace, so nothing is copied and nothing allocates.
 //!
-//! The host (`evpose pose`), the Cortex-M7 firmware and the QEMU test all run windows through
+//! The host (`evpose run`), the Cortex-M7 firmware and the QEMU test all run windows through
 //! [`Session::feed`] (or its parts [`Session::extend`] / [`Session::flush`]). The engine is a type
 //! parameter of the [`Workspace`] ([`I8`] or [`F32`]), so an image links only the one it runs. A
 //! [`Profiler`]

@@ -1,7 +1,7 @@
 //! evpose on a Cortex-M7, end to end: events → rasterization → sampling → int8 PointNet → SimDR.
 //!
 //! The image embeds an int8 model blob (`models/mcu.evq` at the repository root, the trained MCU
-//! model and the default of `evpose pose`) and 22,500 events of the DAVIS346 street recording
+//! model and the default of `evpose run`) and 22,500 events of the DAVIS346 street recording
 //! (`assets/street-00-02.evs`, three 7,500-event windows). It streams the events through the
 //! core's rasterizer in DMA-sized batches, samples each window to the blob's point count (256)
 //! with a fixed seed, runs the int8 engine, decodes the joints, and prints per window, over defmt

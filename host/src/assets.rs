@@ -1,11 +1,11 @@
 //! What ships inside the `evpose` binary, so that an installed tool needs no checkout: the
-//! default model and a sample recording window. (DHP19's calibration is embedded by
-//! [`crate::dhp19`].)
+//! default model, the sample clip with its ground truth and a sample recording window.
+//! (DHP19's calibration is embedded by [`crate::dhp19`].)
 
 use crate::io::{self, EventReader, OpenOptions};
 use crate::model::AlignedBlob;
 
-/// The default model of `evpose pose` and of the firmware: the trained MCU PointNet
+/// The default model of `evpose run` and of the firmware: the trained MCU PointNet
 /// (`models/mcu.evq`, int8, 256 points; `train/recipe.sh` makes it from synthetic data).
 pub const DEFAULT_MODEL: &[u8] = include_bytes!("../../models/mcu.evq");
 
@@ -28,4 +28,23 @@ pub fn street_window() -> anyhow::Result<Box<dyn EventReader>> {
         "bundled street-00.events.npy",
         &OpenOptions::default(),
     )
+}
+
+/// The sample clip, `evpose run`'s default input: a synthetic DHP19-style recording (four
+/// DAVIS346 cameras, AEDAT 2.0, 2 s, 368,884 events) of a held-out subject (`evpose sim --seed
+/// 4242`, never in training) kicking sideways (`side-kick`).
+pub const CLIP: &[u8] = include_bytes!("../../assets/clip/S4242-00_side-kick.aedat");
+
+/// Where [`CLIP`] comes from, for messages.
+pub const CLIP_NAME: &str = "the bundled clip (assets/clip/S4242-00_side-kick.aedat)";
+
+/// The clip's ground truth: 13 joints in mm at 100 Hz from t = 0 (`evpose sim`'s `.gt.npy`).
+pub const CLIP_GT: &[u8] = include_bytes!("../../assets/clip/S4242-00_side-kick.gt.npy");
+
+/// Where [`CLIP_GT`] comes from, for messages.
+pub const CLIP_GT_NAME: &str = "assets/clip/S4242-00_side-kick.gt.npy";
+
+/// [`CLIP`] as an event reader.
+pub fn clip() -> anyhow::Result<Box<dyn EventReader>> {
+    io::open_bytes(CLIP, "bundled clip", &OpenOptions::default())
 }

@@ -227,17 +227,7 @@ pub fn dhp19_sources(dir: &Path) -> Result<Vec<Source>> {
                 events.display()
             );
         };
-        let mat = events.with_extension("mat");
-        let bytes =
-            std::fs::read(&mat).with_context(|| format!("cannot read {}", mat.display()))?;
-        let vicon =
-            crate::dhp19::mat::read_xyzpos(&bytes).with_context(|| mat.display().to_string())?;
-        let gt = vicon
-            .dhp19_frames()
-            .with_context(|| mat.display().to_string())?
-            .iter()
-            .map(|f| f.map(|j| j.map(|v| v as f32)))
-            .collect();
+        let gt = crate::dhp19::vicon_poses(&events.with_extension("mat"))?;
         out.push(Source {
             events,
             gt,

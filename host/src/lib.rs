@@ -7,7 +7,7 @@
 //! | stage | module |
 //! |---|---|
 //! | events in | [`io`] (every format, files or memory), [`summary`], [`convert`], [`simulate`] (synthetic DHP19-style recordings) |
-//! | windows → estimates | [`pipeline`] (any reader through a core stage), [`pose`] (the JSON schema, once) |
+//! | windows → estimates | [`pipeline`] (any reader through a core stage), [`run`] (the main job: multi-camera windows, confidences, filter, 3-D, ground truth; the output schema, once) |
 //! | 3-D | [`dhp19`] (calibration), [`triangulate`] (window pairing, 3-D joints) |
 //! | ground truth | [`dataset`] (labelled windows for training), [`eval`] (MPJPE 2-D and 3-D) |
 //! | models | [`model`] (blobs, quantization; ONNX and tract with feature `onnx`), [`inputs`], [`parity`] |
@@ -34,8 +34,8 @@ pub mod latency;
 pub mod model;
 pub mod parity;
 pub mod pipeline;
-pub mod pose;
 pub mod render;
+pub mod run;
 pub mod simulate;
 pub mod summary;
 pub mod triangulate;

@@ -1,15 +1,15 @@
 //! Recordings through the core, window by window: events from any [`EventReader`] (a file,
 //! the simulator, memory), one camera selected, windows cut per camera or over all cameras,
-//! and each window handed to a core stage: the [`Rasterizer`] alone (`evpose raster`) or a
-//! whole [`Session`] (`evpose pose`).
+//! and each window handed to a core stage: the [`Rasterizer`] (`evpose raster`, datasets,
+//! calibration inputs). `evpose run` cuts windows over several cameras at once
+//! ([`crate::run::windows`]) and feeds each camera's core [`evpose_core::Session`].
 //!
 //! [`drive`] is the one loop over a reader's batches; a [`WindowSink`] is what it feeds.
 
 use anyhow::{bail, Context, Result};
-use evpose_core::pipeline::{Engine, Estimate, Workspace};
 use evpose_core::raster::{RasterParts, MAX_HEIGHT, MAX_WIDTH};
 use evpose_core::{
-    Event, RasterConfig, RasterStats, RasterStorage, Rasterizer, Session, Window, WindowRule,
+    Event, RasterConfig, RasterStats, RasterStorage, Rasterizer, Window, WindowRule,
 };
 
 use crate::io::{self, Batch, EventReader, OpenOptions, StreamInfo};
@@ -88,7 +88,7 @@ pub struct RunReport {
 }
 
 /// A core stage that turns events into windows and hands each closed window on: [`drive`]
-/// feeds it. [`Rasterizing`] (point clouds) and [`Estimating`] (whole estimates) are the two.
+/// feeds it. [`Rasterizing`] (point clouds) is the one.
 pub trait WindowSink {
     /// Feeds events until one closes a window, which is handed on; returns how many events
     /// were used and whether a window closed.
@@ -145,52 +145,6 @@ impl<S: RasterStorage, F: FnMut(usize, &Window<'_>) -> Result<()>> WindowSink
 
     fn stats(&self) -> RasterStats {
         *self.raster.stats()
-    }
-}
-
-/// A core [`Session`] running in a workspace, whose estimates go to `on_window`.
-pub struct Estimating<'m, 'w, S, E: Engine, F> {
-    session: Session<'m, S>,
-    workspace: Workspace<'w, E>,
-    on_window: F,
-}
-
-impl<'m, 'w, S: RasterStorage, E: Engine, F: FnMut(&Estimate<'_>) -> Result<()>>
-    Estimating<'m, 'w, S, E, F>
-{
-    /// Hands `session`'s estimates, computed in `workspace`, to `on_window`.
-    pub fn new(session: Session<'m, S>, workspace: Workspace<'w, E>, on_window: F) -> Self {
-        Self {
-            session,
-            workspace,
-            on_window,
-        }
-    }
-}
-
-impl<S: RasterStorage, E: Engine, F: FnMut(&Estimate<'_>) -> Result<()>> WindowSink
-    for Estimating<'_, '_, S, E, F>
-{
-    fn extend(&mut self, events: &[Event]) -> Result<(usize, bool)> {
-        let (used, estimate) = self.session.extend(events, &mut self.workspace, &mut ())?;
-        let closed = estimate.is_some();
-        if let Some(e) = estimate {
-            (self.on_window)(&e)?;
-        }
-        Ok((used, closed))
-    }
-
-    fn flush(&mut self) -> Result<()> {
-        let e = self.session.flush(&mut self.workspace, &mut ())?;
-        (self.on_window)(&e)
-    }
-
-    fn buffered(&self) -> usize {
-        self.session.rasterizer().buffered()
-    }
-
-    fn stats(&self) -> RasterStats {
-        *self.session.rasterizer().stats()
     }
 }
 

@@ -207,3 +207,237 @@ pub fn bar_chart(title: &str, labels: &[&str], panels: &[Panel<'_>]) -> Result<R
     }
     Ok(img)
 }
+
+/// Where the frames of a run go.
+enum FrameSink {
+    /// One animated GIF.
+    Gif(Box<image::codecs::gif::GifEncoder<std::io::BufWriter<std::fs::File>>>),
+    /// Numbered PNG files: the path with `-000`, `-001`, … before the extension.
+    Png(std::path::PathBuf),
+}
+
+/// Milliseconds each GIF frame shows.
+pub const GIF_FRAME_MS: u32 = 150;
+
+/// Height of the text strip above each frame, pixels.
+const STRIP: u32 = 20;
+
+/// The pictures of `evpose run --render`: per window, each camera's event frame with the
+/// predicted skeleton (orange) and the ground truth's (green) drawn over it, and with 3-D
+/// joints a front (x–z) and a side (y–z) view of the 3-D skeletons; written as an animated
+/// GIF (`.gif`) or as numbered PNG frames (`.png`), one frame per window, as the run goes.
+pub struct RunRenderer {
+    sink: FrameSink,
+    scale: u32,
+    sizes: Vec<(u16, u16)>,
+    show3d: bool,
+    /// The 3-D views' horizontal centres (x, y), mm: the first window's pose.
+    centre: Option<[f64; 2]>,
+    font: ab_glyph::FontRef<'static>,
+    frames: usize,
+}
+
+/// The 3-D views span this many mm on each side of their centre, and up from the floor.
+const VIEW_HALF_MM: f64 = 1_100.0;
+const VIEW_TOP_MM: f64 = 2_100.0;
+
+impl RunRenderer {
+    /// Frames into `path` (`.gif` or `.png`) for cameras of `sizes` (sensor pixels), magnified
+    /// `scale` times, with the 3-D views when `show3d`.
+    pub fn create(
+        path: &std::path::Path,
+        sizes: &[(u16, u16)],
+        scale: u32,
+        show3d: bool,
+    ) -> Result<Self> {
+        if !(1..=4).contains(&scale) {
+            bail!("render scale {scale}: 1 to 4");
+        }
+        let sink = match path.extension().and_then(|e| e.to_str()) {
+            Some("gif") => {
+                let file = std::fs::File::create(path)
+                    .with_context(|| format!("cannot create {}", path.display()))?;
+                let mut enc = image::codecs::gif::GifEncoder::new_with_speed(
+                    std::io::BufWriter::new(file),
+                    10,
+                );
+                enc.set_repeat(image::codecs::gif::Repeat::Infinite)?;
+                FrameSink::Gif(Box::new(enc))
+            }
+            Some("png") => FrameSink::Png(path.to_path_buf()),
+            _ => bail!("{}: render to a .gif or .png file", path.display()),
+        };
+        Ok(Self {
+            sink,
+            scale,
+            sizes: sizes.to_vec(),
+            show3d,
+            centre: None,
+            font: ab_glyph::FontRef::try_from_slice(FONT).context("the embedded font")?,
+            frames: 0,
+        })
+    }
+
+    /// Frames written.
+    pub fn frames(&self) -> usize {
+        self.frames
+    }
+
+    /// Draws one window's frame and writes it.
+    pub fn add(
+        &mut self,
+        w: &crate::run::RunWindow,
+        events: &crate::run::windows::WindowEvents<'_>,
+        truth: Option<&crate::run::WindowTruth>,
+    ) -> Result<()> {
+        use imageproc::drawing::draw_text_mut;
+        let s = self.scale;
+        let h = self
+            .sizes
+            .iter()
+            .map(|&(_, h)| u32::from(h))
+            .max()
+            .unwrap_or(1)
+            * s;
+        let panel3d = h;
+        let width = self
+            .sizes
+            .iter()
+            .map(|&(w, _)| u32::from(w) * s)
+            .sum::<u32>()
+            + if self.show3d { 2 * panel3d } else { 0 };
+        let mut img = RgbImage::from_pixel(width, h + 2 * STRIP, Rgb([40, 40, 40]));
+        let ink = Rgb([235, 235, 235]);
+        let mut x0 = 0u32;
+        for (i, cam) in w.cameras.iter().enumerate() {
+            let (cw, ch) = self.sizes[i];
+            let evs: Vec<Event> = events.of_camera(cam.camera).collect();
+            let mut frame = event_frame(&evs, cw, ch, s)?;
+            if let Some(t) = truth {
+                let (label, mask) = &t.cameras[i];
+                draw_skeleton(&mut frame, label, mask, s, GROUND_TRUTH);
+            }
+            let pred = joints_array(&cam.joints);
+            draw_skeleton(&mut frame, &pred, &[1; JOINTS], s, PREDICTION);
+            image::imageops::overlay(&mut img, &frame, i64::from(x0), i64::from(STRIP));
+            let conf = cam
+                .mean_confidence()
+                .map_or(String::new(), |c| format!("  conf {c:.2}"));
+            let text = format!("camera {}  {} ev{conf}", cam.camera, cam.events);
+            draw_text_mut(&mut img, ink, x0 as i32 + 4, 2, 14.0, &self.font, &text);
+            x0 += u32::from(cw) * s;
+        }
+        if self.show3d {
+            self.draw_3d(&mut img, w, truth, x0, panel3d);
+        }
+        let mut caption = format!(
+            "window {}  t {:.3}-{:.3} s",
+            w.window,
+            w.t_us[0] as f64 * 1e-6,
+            w.t_us[1] as f64 * 1e-6
+        );
+        if let Some(e) = w.error.as_ref().and_then(|e| e.mpjpe3d_mm) {
+            caption += &format!("  3-D error {e:.0} mm");
+        }
+        caption += if truth.is_some() {
+            "  orange: prediction, green: ground truth"
+        } else {
+            "  orange: prediction"
+        };
+        if w.no_body == Some(true) {
+            caption += "  NO BODY SEEN (low confidence)";
+        }
+        draw_text_mut(
+            &mut img,
+            ink,
+            4,
+            (h + STRIP + 2) as i32,
+            14.0,
+            &self.font,
+            &caption,
+        );
+        self.write(img)
+    }
+
+    fn draw_3d(
+        &mut self,
+        img: &mut RgbImage,
+        w: &crate::run::RunWindow,
+        truth: Option<&crate::run::WindowTruth>,
+        x0: u32,
+        side: u32,
+    ) {
+        use imageproc::drawing::{draw_hollow_rect_mut, draw_text_mut};
+        let pred: Vec<Option<[f64; 3]>> = w.joints3d.clone().unwrap_or_default();
+        if self.centre.is_none() {
+            let pts: Vec<[f64; 3]> = match truth {
+                Some(t) => t.joints3d.iter().map(|p| p.map(f64::from)).collect(),
+                None => pred.iter().flatten().copied().collect(),
+            };
+            if !pts.is_empty() {
+                let n = pts.len() as f64;
+                self.centre = Some([
+                    pts.iter().map(|p| p[0]).sum::<f64>() / n,
+                    pts.iter().map(|p| p[1]).sum::<f64>() / n,
+                ]);
+            }
+        }
+        let centre = self.centre.unwrap_or([0.0; 2]);
+        for (v, (axis, name)) in [(0usize, "front (x-z)"), (1, "side (y-z)")]
+            .into_iter()
+            .enumerate()
+        {
+            let left = x0 + v as u32 * side;
+            let to_px = |p: [f64; 3]| -> (f32, f32) {
+                let f = f64::from(side) / (2.0 * VIEW_HALF_MM);
+                let u = (p[axis] - centre[axis] + VIEW_HALF_MM) * f;
+                let r = (VIEW_TOP_MM - p[2]) * f64::from(side) / (VIEW_TOP_MM + 100.0);
+                ((f64::from(left) + u) as f32, (f64::from(STRIP) + r) as f32)
+            };
+            let rect = imageproc::rect::Rect::at(left as i32, STRIP as i32).of_size(side, side);
+            draw_hollow_rect_mut(img, rect, Rgb([90, 90, 90]));
+            let mut draw = |joints: &[Option<[f64; 3]>], colour: Rgb<u8>| {
+                for &(a, b) in &SKELETON {
+                    if let (Some(Some(pa)), Some(Some(pb))) = (joints.get(a), joints.get(b)) {
+                        draw_line_segment_mut(img, to_px(*pa), to_px(*pb), colour);
+                    }
+                }
+                for p in joints.iter().flatten() {
+                    let (x, y) = to_px(*p);
+                    draw_filled_circle_mut(img, (x as i32, y as i32), 2, colour);
+                }
+            };
+            if let Some(t) = truth {
+                let g: Vec<Option<[f64; 3]>> =
+                    t.joints3d.iter().map(|p| Some(p.map(f64::from))).collect();
+                draw(&g, GROUND_TRUTH);
+            }
+            draw(&pred, PREDICTION);
+            let ink = Rgb([235, 235, 235]);
+            draw_text_mut(img, ink, left as i32 + 4, 2, 14.0, &self.font, name);
+        }
+    }
+
+    fn write(&mut self, img: RgbImage) -> Result<()> {
+        match &mut self.sink {
+            FrameSink::Gif(enc) => {
+                let rgba = image::DynamicImage::ImageRgb8(img).into_rgba8();
+                let delay = image::Delay::from_numer_denom_ms(GIF_FRAME_MS, 1);
+                enc.encode_frame(image::Frame::from_parts(rgba, 0, 0, delay))
+                    .context("writing the GIF")?;
+            }
+            FrameSink::Png(path) => {
+                let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("frame");
+                let name = path.with_file_name(format!("{stem}-{:03}.png", self.frames));
+                save(&img, &name)?;
+            }
+        }
+        self.frames += 1;
+        Ok(())
+    }
+}
+
+/// Joints as the fixed-size array the drawing takes (missing joints at 0).
+fn joints_array(joints: &[[f32; 2]]) -> [[f32; 2]; JOINTS] {
+    std::array::from_fn(|j| joints.get(j).copied().unwrap_or_default())
+}

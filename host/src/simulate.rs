@@ -231,11 +231,13 @@ pub fn parse_movements(list: &str) -> Result<Vec<Movement>> {
 /// A generated recording's ground truth: `(T, 13, 3)` mm.
 pub fn read_gt(path: &Path) -> Result<Vec<[[f32; 3]; evpose_sim::JOINTS]>> {
     let (shape, v) = array::read_f64(path)?;
+    gt_from_array(&shape, &v).with_context(|| path.display().to_string())
+}
+
+/// Ground truth from a `(T, 13, 3)` array's shape and values (any numeric dtype).
+pub fn gt_from_array(shape: &[u64], v: &[f64]) -> Result<Vec<[[f32; 3]; evpose_sim::JOINTS]>> {
     if shape.len() != 3 || shape[1] != evpose_sim::JOINTS as u64 || shape[2] != 3 {
-        bail!(
-            "{}: expected a (T, 13, 3) array, got {shape:?}",
-            path.display()
-        );
+        bail!("expected a (T, 13, 3) ground-truth array, got {shape:?}");
     }
     Ok(v.chunks_exact(3 * evpose_sim::JOINTS)
         .map(|s| std::array::from_fn(|j| std::array::from_fn(|a| s[3 * j + a] as f32)))

@@ -1,7 +1,7 @@
 //! `evpose triangulate`: 3-D joints (mm) from the 2-D joints of two DHP19 cameras.
 //!
-//! The 2-D joints come from two JSON-lines outputs of `evpose pose --json`, one per camera
-//! (each line's `joints`, `[[x, y], …]` in pixels, and `t_us`, its first and last timestamp);
+//! The 2-D joints come from two outputs of `evpose run --out F.json|F.jsonl`, one camera each
+//! (each window's `cameras[0].joints`, `[[x, y], …]` in pixels, and `t_us`, its time span);
 //! or from two explicit lists. Each camera's windows are cut from its own events, so window `i`
 //! of one camera need not cover the same time as window `i` of the other: each window of the
 //! first file is paired with the window of the second whose time span overlaps it most (by
@@ -9,15 +9,13 @@
 //! from the top-left), as the reference evaluation takes its decoded joints; each joint pair is
 //! triangulated with [`evpose_core::geometry::triangulate`].
 
-use std::fs::File;
-use std::io::{BufRead, BufReader};
 use std::path::Path;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use evpose_core::geometry::{triangulate_joints, Camera, GeometryError};
 use serde::Serialize;
 
-use crate::pose::WindowPose;
+use crate::run::RunWindow;
 
 /// One window's 3-D pose.
 #[derive(Clone, Debug, Serialize)]
@@ -96,33 +94,55 @@ pub fn triangulate_window(
     })
 }
 
-/// Reads the `joints` and `t_us` of every line of an `evpose pose --json` output (blank lines
-/// skipped).
+/// Reads the `joints` and `t_us` of every window of a one-camera `evpose run` output: a JSON
+/// array (`.json`) or JSON lines (blank lines skipped).
 pub fn read_poses(path: &Path) -> Result<Vec<View>> {
-    let file = File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-    let mut windows = Vec::new();
-    for (i, line) in BufReader::new(file).lines().enumerate() {
-        let line = line.with_context(|| format!("{}: reading line {}", path.display(), i + 1))?;
-        if line.trim().is_empty() {
-            continue;
-        }
-        let pose: WindowPose = serde_json::from_str(&line).with_context(|| {
-            format!(
-                "{} line {}: not an `evpose pose --json` line",
-                path.display(),
-                i + 1
-            )
-        })?;
-        windows.push(View {
-            joints: pose
-                .joints
-                .iter()
-                .map(|&(u, v)| (f64::from(u), f64::from(v)))
-                .collect(),
-            t_us: pose.t_us,
-        });
-    }
-    Ok(windows)
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let windows: Vec<(usize, RunWindow)> = if text.trim_start().starts_with('[') {
+        serde_json::from_str::<Vec<RunWindow>>(&text)
+            .with_context(|| format!("{}: not an `evpose run` JSON output", path.display()))?
+            .into_iter()
+            .enumerate()
+            .collect()
+    } else {
+        text.lines()
+            .enumerate()
+            .filter(|(_, l)| !l.trim().is_empty())
+            .map(|(i, line)| {
+                let w: RunWindow = serde_json::from_str(line).with_context(|| {
+                    format!(
+                        "{} line {}: not an `evpose run` JSON line",
+                        path.display(),
+                        i + 1
+                    )
+                })?;
+                Ok((i, w))
+            })
+            .collect::<Result<_>>()?
+    };
+    windows
+        .into_iter()
+        .map(|(i, w)| {
+            let [cam] = &w.cameras[..] else {
+                bail!(
+                    "{} window {}: {} cameras; give one-camera outputs (`evpose run` \
+                     triangulates several cameras itself)",
+                    path.display(),
+                    i,
+                    w.cameras.len()
+                );
+            };
+            Ok(View {
+                joints: cam
+                    .joints
+                    .iter()
+                    .map(|&[u, v]| (f64::from(u), f64::from(v)))
+                    .collect(),
+                t_us: Some((w.t_us[0], w.t_us[1])),
+            })
+        })
+        .collect()
 }
 
 /// Parses `u,v` pairs separated by white space or `;`.

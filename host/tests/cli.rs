@@ -329,27 +329,30 @@ fn damaged_files_are_errors_naming_the_offset() {
 }
 
 #[test]
-fn pose_runs_the_whole_pipeline_with_the_default_model() {
-    let out = evpose(&[
-        "pose",
-        "--events",
-        s(&fixture("street-00.events.npy")),
-        "--json",
-    ]);
-    let lines: Vec<serde_json::Value> = out
+fn run_estimates_a_recording_with_the_default_model() {
+    let street = fixture("street-00.events.npy");
+    let out = tmp("street.jsonl");
+    let text = evpose(&["run", "--events", s(&street), "--out", s(&out)]);
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(&out)
+        .unwrap()
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
     assert_eq!(lines.len(), 1, "one 7,500-event window");
-    assert_eq!(lines[0]["points"], 2912);
-    let joints = lines[0]["joints"].as_array().unwrap();
+    let cam = &lines[0]["cameras"][0];
+    assert_eq!(lines[0]["events"], 7500);
+    assert_eq!(cam["points"], 2912);
+    let joints = cam["joints"].as_array().unwrap();
     assert_eq!(joints.len(), 13);
     for j in joints {
-        assert!(j[0].as_u64().unwrap() < 346 && j[1].as_u64().unwrap() < 260);
+        assert!(j[0].as_f64().unwrap() < 346.0 && j[1].as_f64().unwrap() < 260.0);
     }
+    // One camera, uncalibrated: no 3-D; no ground truth: no error.
+    assert!(lines[0].get("joints3d").is_none() && lines[0].get("error").is_none());
     // The bundled model carries its logit scales: 13 confidences in [0, 1]. The window is a
-    // street scene without a person; its mean confidence is below the no-body threshold.
-    let conf: Vec<f64> = lines[0]["confidence"]
+    // street scene without a person; its mean confidence is below the no-body threshold, and
+    // the user is told.
+    let conf: Vec<f64> = cam["confidence"]
         .as_array()
         .unwrap()
         .iter()
@@ -359,28 +362,145 @@ fn pose_runs_the_whole_pipeline_with_the_default_model() {
     assert!(conf.iter().all(|c| (0.0..=1.0).contains(c)), "{conf:?}");
     let mean = conf.iter().sum::<f64>() / 13.0;
     assert!(
-        mean < f64::from(evpose_host::pose::NO_BODY_CONFIDENCE),
+        mean < f64::from(evpose_host::run::NO_BODY_CONFIDENCE),
         "{mean}"
     );
-    // The same seed gives the same joints; the f32 model gives joints of the same shape.
+    assert_eq!(lines[0]["no_body"], true);
+    assert!(text.contains("no body seen: 1 of 1 windows"), "{text}");
+    // The same seed gives the same joints; without the filter the raw joints are the joints;
+    // the f32 model gives joints of the same shape.
+    let again = tmp("street-again.jsonl");
+    evpose(&["run", "--events", s(&street), "--out", s(&again)]);
     assert_eq!(
-        evpose(&[
-            "pose",
-            "--events",
-            s(&fixture("street-00.events.npy")),
-            "--json"
-        ]),
-        out
+        std::fs::read_to_string(&again).unwrap(),
+        std::fs::read_to_string(&out).unwrap()
     );
-    let f = evpose(&[
-        "pose",
+    let lines_off = evpose(&[
+        "run",
         "--events",
-        s(&fixture("street-00.events.npy")),
+        s(&street),
+        "--smooth",
+        "off",
+        "--json",
+        "-v",
+    ]);
+    let v: serde_json::Value = serde_json::from_str(lines_off.lines().next().unwrap()).unwrap();
+    assert_eq!(v["cameras"][0]["joints"], *cam.get("raw_joints").unwrap());
+    assert!(v["cameras"][0].get("raw_joints").is_none());
+    let f = evpose(&[
+        "run",
+        "--events",
+        s(&street),
         "--model",
         s(&fixture("pointnet-small.onnx")),
+        "--engine",
+        "f32",
         "--json",
     ]);
-    assert_eq!(f.lines().count(), 1);
+    let summary: serde_json::Value = serde_json::from_str(f.lines().last().unwrap()).unwrap();
+    assert_eq!(summary["summary"]["windows"], 1);
+    assert_eq!(summary["run"]["engine"], "f32");
+    // Bad requests are refused with a reason.
+    assert!(evpose_err(&["run", "--events", s(&street), "--cameras", "3"]).contains("no camera 3"));
+    assert!(evpose_err(&["run", "--events", s(&street), "--stride", "9000"]).contains("stride"));
+    assert!(evpose_err(&["run", "--events", s(&street), "--engine", "tract"]).contains(".onnx"));
+    assert!(evpose_err(&["run", "--events", s(&street), "--out", "x.txt"]).contains(".jsonl"));
+}
+
+#[test]
+fn run_on_the_bundled_clip_follows_its_ground_truth() {
+    use evpose_host::dhp19;
+    // No arguments: the bundled model on the bundled synthetic clip (four DHP19 cameras, 2 s,
+    // a held-out subject kicking sideways), cameras 2 and 3, 3-D by triangulation.
+    let out = tmp("clip.json");
+    let text = evpose(&["run", "--out", s(&out)]);
+    assert!(text.contains("synthetic data: not DHP19 figures"), "{text}");
+    let windows: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert_eq!(windows.len(), 12, "368,884 events in 30,000-event windows");
+    // The clip's ground truth, read here with numpy's format alone: (200, 13, 3) mm at 100 Hz.
+    let gt_path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/clip/S4242-00_side-kick.gt.npy");
+    let (shape, gt) = evpose_host::array::read_f64(&gt_path).unwrap();
+    assert_eq!(shape, vec![200, 13, 3]);
+    let pose_at = |k: usize, j: usize| [0, 1, 2].map(|a| gt[(k * 13 + j) * 3 + a]);
+    let cams = [2u8, 3].map(|c| dhp19::bundled_camera(c).unwrap());
+    let (mut sum2, mut n2, mut sum3, mut n3) = (0.0, 0, 0.0, 0);
+    for w in &windows {
+        let (t0, t1) = (
+            w["t_us"][0].as_i64().unwrap(),
+            w["t_us"][1].as_i64().unwrap(),
+        );
+        // The label: the mean of the 100 Hz samples inside the window's span.
+        let ks: Vec<usize> = (0..200)
+            .filter(|&k| (t0..=t1).contains(&(k as i64 * 10_000)))
+            .collect();
+        assert!(!ks.is_empty());
+        let label = |j: usize| {
+            let mut m = [0.0; 3];
+            for &k in &ks {
+                for (m, p) in m.iter_mut().zip(pose_at(k, j)) {
+                    *m += p / ks.len() as f64;
+                }
+            }
+            m
+        };
+        for (c, cam) in w["cameras"].as_array().unwrap().iter().zip(&cams) {
+            for (j, p) in c["joints"].as_array().unwrap().iter().enumerate() {
+                let Some((u, v)) = cam.project(label(j)) else {
+                    continue;
+                };
+                if !cam.is_visible((u, v)) {
+                    continue;
+                }
+                let (x, y) = (p[0].as_f64().unwrap(), p[1].as_f64().unwrap());
+                sum2 += ((x - u.trunc()).powi(2) + (y - v.trunc()).powi(2)).sqrt();
+                n2 += 1;
+            }
+        }
+        for (j, p) in w["joints3d"].as_array().unwrap().iter().enumerate() {
+            let Some(p) = p.as_array() else { continue };
+            let l = label(j);
+            sum3 += (0..3)
+                .map(|a| (p[a].as_f64().unwrap() - l[a]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            n3 += 1;
+        }
+    }
+    let (mpjpe2d, mpjpe3d) = (sum2 / f64::from(n2), sum3 / f64::from(n3));
+    // Measured: 9.42 px and 85.3 mm (the mean-pose baseline on the held-out set: 22.9 px,
+    // 273 mm). The bounds leave room for rounding across machines, not for a broken pipeline.
+    assert!(n2 > 250 && n3 > 120, "{n2} {n3}");
+    assert!(mpjpe2d < 12.0, "MPJPE2D {mpjpe2d:.2} px");
+    assert!(mpjpe3d < 110.0, "MPJPE3D {mpjpe3d:.1} mm");
+    // The run's own figures agree with this independent computation.
+    let v = json(&["run", "--json"]);
+    let e = &v["summary"]["errors"];
+    assert!(
+        (e["mpjpe2d_px"].as_f64().unwrap() - mpjpe2d).abs() < 1e-6,
+        "{e}"
+    );
+    // (The run's 3-D label is stored as f32: 1e-3 mm.)
+    assert!(
+        (e["mpjpe3d_mm"].as_f64().unwrap() - mpjpe3d).abs() < 1e-3,
+        "{e}"
+    );
+    assert_eq!(
+        v["summary"]["no_body_windows"], 0,
+        "a person in every window"
+    );
+    // Sliding windows: a window every 15,000 events gives 23.
+    let v = json(&["run", "--stride", "15000", "--json"]);
+    assert_eq!(v["summary"]["windows"], 23);
+    // The render: one GIF frame per window.
+    let gif = tmp("clip.gif");
+    evpose(&["run", "--render", s(&gif)]);
+    let bytes = std::fs::read(&gif).unwrap();
+    assert!(bytes.starts_with(b"GIF89a"));
+    let frames = image::codecs::gif::GifDecoder::new(std::io::Cursor::new(bytes)).unwrap();
+    use image::AnimationDecoder;
+    assert_eq!(frames.into_frames().count(), 12);
 }
 
 #[test]
@@ -505,8 +625,8 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
         dhp19::camera(&dir, 2).unwrap(),
         dhp19::camera(&dir, 3).unwrap(),
     );
-    // Two windows of 13 joints near the capture volume's origin, as `evpose pose --json` prints
-    // them (whole pixels). Camera 3's windows are cut at other times: it has one more, earlier
+    // Two windows of 13 joints near the capture volume's origin, as a one-camera
+    // `evpose run --out F.jsonl` writes them (whole pixels here). Camera 3's windows are cut at other times: it has one more, earlier
     // window, so its window w + 1 is the one that covers camera 2's window w.
     let truth = |w: usize, j: usize| [40.0 * j as f64 - 240.0, 100.0 * w as f64, 120.0 * j as f64];
     let pixels = |cam: &evpose_core::geometry::Camera, w: usize| -> Vec<(u16, u16)> {
@@ -523,8 +643,10 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
             .enumerate()
             .map(|(i, w)| {
                 serde_json::json!({
-                    "window": i, "t_us": [w * 100 + 10, w * 100 + 90], "points": 2048,
-                    "joints": pixels(cam, w.max(0) as usize),
+                    "window": i, "t_us": [w * 100 + 10, w * 100 + 90], "events": 30000,
+                    "no_body": false,
+                    "cameras": [{"camera": 2, "events": 7000, "points": 256,
+                        "joints": pixels(cam, w.max(0) as usize), "confidence": []}],
                 })
                 .to_string()
             })
@@ -604,13 +726,15 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
 
     // Bad input: a line that is not a pose, a channel DHP19 does not have.
     let bad = tmp("bad.jsonl");
-    std::fs::write(&bad, "{\"joints\": [[1, 2]]}\n{\"window\": 1}\n").unwrap();
+    let good = std::fs::read_to_string(&pa).unwrap();
+    let first = good.lines().next().unwrap();
+    std::fs::write(&bad, format!("{first}\n{{\"window\": 1}}\n")).unwrap();
     assert!(evpose_err(&["triangulate", s(&bad), s(&pb)]).contains("line 2"));
     assert!(evpose_err(&["triangulate", s(&pa), s(&pb), "--cameras", "2,7"]).contains("0–3"));
 }
 
 #[test]
-fn pose_with_all_camera_windows_gives_every_camera_the_same_windows() {
+fn run_cuts_windows_over_all_cameras() {
     // 4,000 events of a DHP19 recording, the first 1,000 all from camera 0: with windows of
     // 1,000 events over all cameras, every camera gets 4 windows, camera 1's first one empty
     // (an all-zero input: still a pose, so that the windows stay aligned).
@@ -620,24 +744,31 @@ fn pose_with_all_camera_windows_gives_every_camera_the_same_windows() {
     }
     let path = tmp("dhp19-windows.aedat");
     std::fs::write(&path, encoders::aedat2_davis346(&events, true)).unwrap();
-    let poses = |cam: &str, shared: bool| -> Vec<serde_json::Value> {
-        let mut args = vec!["pose", "--events", s(&path), "--camera", cam];
-        args.extend(["--window-events", "1000", "--json"]);
-        if shared {
-            args.push("--all-camera-windows");
+    let out = tmp("dhp19-windows.jsonl");
+    let args = ["run", "--events", s(&path), "--cameras", "0,1,2,3"];
+    evpose(&[&args[..], &["--window-events", "1000", "--out", s(&out)]].concat());
+    let windows: Vec<serde_json::Value> = std::fs::read_to_string(&out)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(windows.len(), 4);
+    for (w, win) in windows.iter().enumerate() {
+        assert_eq!(win["events"], 1000);
+        let cams = win["cameras"].as_array().unwrap();
+        assert_eq!(cams.len(), 4);
+        for (c, cam) in cams.iter().enumerate() {
+            assert_eq!(cam["camera"], c);
+            assert_eq!(
+                cam["events"] == 0,
+                w == 0 && c != 0,
+                "window {w} camera {c}"
+            );
         }
-        evpose(&args)
-            .lines()
-            .map(|l| serde_json::from_str(l).unwrap())
-            .collect()
-    };
-    for cam in ["0", "1", "2", "3"] {
-        let p = poses(cam, true);
-        assert_eq!(p.len(), 4, "camera {cam}");
-        assert_eq!(p[0]["points"] == 0, cam != "0", "camera {cam}: {}", p[0]);
-        // An empty window has no time span.
-        assert_eq!(p[0]["t_us"].is_null(), cam != "0", "camera {cam}: {}", p[0]);
+        // DHP19's four calibrated cameras: 3-D joints from all of them.
+        assert_eq!(win["joints3d"].as_array().unwrap().len(), 13);
     }
-    // Per-camera windows (the default) cut camera 1's ~750 events into one window.
-    assert_eq!(poses("1", false).len(), 1);
+    // Windows by time: 4,000 events over ~6 ms in 1 ms windows.
+    let v = json(&[&args[..], &["--window-ms", "1", "--json"]].concat());
+    assert!(v["summary"]["windows"].as_u64().unwrap() >= 4, "{v}");
 }

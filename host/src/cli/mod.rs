@@ -1,6 +1,6 @@
 //! The `evpose` command line: argument definitions, one function per command that calls the
 //! library and prints. Nothing here is imported by tests or other modules; the work lives in
-//! the library modules ([`crate::pose`], [`crate::pipeline`], [`crate::convert`], …).
+//! the library modules ([`crate::run`], [`crate::pipeline`], [`crate::convert`], …).
 
 use std::path::{Path, PathBuf};
 
@@ -16,8 +16,8 @@ pub mod budget;
 pub mod data;
 #[cfg(feature = "onnx")]
 pub mod model;
-pub mod pose;
 pub mod render;
+pub mod run;
 pub mod sim;
 pub mod triangulate;
 
@@ -39,8 +39,10 @@ pub enum Command {
     Convert(ConvertArgs),
     /// Rasterize events into event point clouds [x, y, t_avg, p_acc, cnt] (float32 .npy).
     Raster(RasterArgs),
-    /// Estimate 2-D joints per event window: rasterize, sample, run the model, decode.
-    Pose(pose::PoseArgs),
+    /// The main job: poses from a recording, per window and camera (2-D joints, confidences,
+    /// the temporal filter, 3-D from calibrated cameras), errors against ground truth, pictures.
+    /// Without arguments: the bundled model on the bundled clip.
+    Run(run::RunArgs),
     /// Run a model on a point cloud: tract, the core's f32 engine or its int8 engine.
     #[cfg(feature = "onnx")]
     Infer(model::InferArgs),
@@ -52,7 +54,7 @@ pub enum Command {
     Parity(model::ParityArgs),
     /// Per-layer MACs and bytes of a model, and a firmware image's flash and RAM.
     Budget(budget::BudgetArgs),
-    /// Triangulate two DHP19 cameras' 2-D joints (`pose --json` outputs) to 3-D joints in mm.
+    /// Triangulate two DHP19 cameras' 2-D joints (one-camera `run --out` outputs) to 3-D joints in mm.
     Triangulate(triangulate::TriangulateArgs),
     /// Labelled windows (points, 2-D/3-D labels, masks) from recordings with ground truth.
     Dataset(data::DatasetArgs),
@@ -193,7 +195,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(BenchCommand::Raster(a)) => bench_raster(&a),
         #[cfg(feature = "onnx")]
         Command::Bench(BenchCommand::Infer(a)) => model::bench_infer(&a),
-        Command::Pose(a) => pose::pose(&a),
+        Command::Run(a) => run::run(&a),
         #[cfg(feature = "onnx")]
         Command::Infer(a) => model::infer(&a),
         #[cfg(feature = "onnx")]

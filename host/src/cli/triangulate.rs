@@ -14,9 +14,9 @@ use crate::triangulate::{
 /// Arguments of `evpose triangulate`.
 #[derive(Args, Debug)]
 pub struct TriangulateArgs {
-    /// Two outputs of `evpose pose --json` (JSON lines), one per camera, in the order of
+    /// Two one-camera outputs of `evpose run --out F.json|F.jsonl`, in the order of
     /// `--cameras`; each window of the first is paired with the window of the second whose
-    /// time span (`t_us`) overlaps it most (by position in the files when `t_us` is absent).
+    /// time span (`t_us`) overlaps it most.
     #[arg(
         num_args = 2,
         value_names = ["POSES_A", "POSES_B"],
@@ -39,9 +39,8 @@ pub struct TriangulateArgs {
     /// calibration bundled in the binary, `assets/dhp19`).
     #[arg(long)]
     pub calibration: Option<PathBuf>,
-    /// Pair windows by their position in the files instead of by time: for pose files made
-    /// with `--all-camera-windows`, where window `i` is the same stretch of the recording for
-    /// every camera.
+    /// Pair windows by their position in the files instead of by time (for outputs whose
+    /// window `i` is the same stretch of time for both cameras).
     #[arg(long)]
     pub by_position: bool,
     /// Print JSON lines instead of text.

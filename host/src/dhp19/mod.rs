@@ -69,6 +69,19 @@ pub fn bundled_camera(channel: u8) -> Result<Camera> {
     })
 }
 
+/// The 13 joints (DHP19's order, mm, f32) of every frame of a DHP19 Vicon file (`.mat`,
+/// `XYZPOS`), at 100 Hz from the recording's first event.
+pub fn vicon_poses(path: &Path) -> Result<Vec<[[f32; 3]; 13]>> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let vicon = mat::read_xyzpos(&bytes).with_context(|| path.display().to_string())?;
+    Ok(vicon
+        .dhp19_frames()
+        .with_context(|| path.display().to_string())?
+        .iter()
+        .map(|f| f.map(|j| j.map(|v| v as f32)))
+        .collect())
+}
+
 /// Writes the bundled calibration files into `dir` (created if needed), as DHP19 ships them.
 pub fn write_calibration(dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;

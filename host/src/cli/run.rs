@@ -1,0 +1,273 @@
+//! `evpose run`: arguments and printing; the run is [`crate::run`].
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Result};
+use clap::{Args, ValueEnum};
+use evpose_core::smooth::SmoothParams;
+
+use crate::render::RunRenderer;
+use crate::run::output::PoseWriter;
+use crate::run::setup::{EngineKind, Plan, Request, DEFAULT_TIME_WINDOW_CAPACITY};
+use crate::run::{RunSummary, RunWindow, NO_BODY_CONFIDENCE};
+
+/// On or off.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Switch {
+    /// On.
+    On,
+    /// Off.
+    Off,
+}
+
+/// Arguments of `evpose run`.
+#[derive(Args, Debug)]
+pub struct RunArgs {
+    /// Event recording, any supported format (default: the bundled synthetic four-camera clip
+    /// with ground truth).
+    #[arg(long)]
+    pub events: Option<PathBuf>,
+    /// Model: an `.evq` blob (int8 or f32) or an `.onnx` file (default: the bundled MCU
+    /// PointNet, int8).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Engine (default: i8 for int8 blobs, f32 for f32 blobs, tract for .onnx).
+    #[arg(long, value_enum)]
+    pub engine: Option<EngineKind>,
+    /// Cameras to estimate, e.g. `2,3` (default: DHP19's front pair 2,3 for DHP19-layout
+    /// recordings, else the recording's camera). Two or more calibrated cameras give 3-D.
+    #[arg(long, value_delimiter = ',')]
+    pub cameras: Option<Vec<u8>>,
+    /// Events per window, counted over all cameras of the recording (default: the model's
+    /// window, 7,500, times the recording's cameras: 30,000 for DHP19's four).
+    #[arg(long, conflicts_with = "window_ms")]
+    pub window_events: Option<u32>,
+    /// Window length in ms, instead of an event count.
+    #[arg(long)]
+    pub window_ms: Option<f64>,
+    /// A window every this many events (or ms with --window-ms): sliding windows, for lower
+    /// latency (default: the window, no overlap).
+    #[arg(long)]
+    pub stride: Option<f64>,
+    /// Most events a time window holds (the oldest beyond it are dropped and counted).
+    #[arg(long, default_value_t = DEFAULT_TIME_WINDOW_CAPACITY)]
+    pub max_window_events: usize,
+    /// Points per network input (default: the model's).
+    #[arg(long)]
+    pub points: Option<usize>,
+    /// Seed of the point samplers.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// The confidence-gated temporal filter over windows.
+    #[arg(long, value_enum, default_value_t = Switch::On)]
+    pub smooth: Switch,
+    /// Ground truth (`.gt.npy` of `evpose sim`, or DHP19's `.mat`; default: the one beside
+    /// the recording, if any).
+    #[arg(long)]
+    pub gt: Option<PathBuf>,
+    /// Calibration directory with DHP19's `P1..P4.npy` and `camera_positions.npy` (default:
+    /// `calibration/` beside the recording, else DHP19's own for DHP19-layout recordings).
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
+    /// Write the poses: `.json` (an array of windows), `.jsonl` (a window per line) or `.csv`
+    /// (a row per window, view and joint); repeat for several.
+    #[arg(long)]
+    pub out: Vec<PathBuf>,
+    /// Draw each window (events, predicted and true skeletons, 3-D views) into an animated
+    /// `.gif`, or numbered `.png` frames.
+    #[arg(long)]
+    pub render: Option<PathBuf>,
+    /// Magnification of --render.
+    #[arg(long, default_value_t = 1)]
+    pub render_scale: u32,
+    /// Print every window's line (text), or with --json every window as a JSON line.
+    #[arg(long, short)]
+    pub verbose: bool,
+    /// Print JSON: the windows as lines with --verbose, then the summary.
+    #[arg(long)]
+    pub json: bool,
+    /// How to read the recording.
+    #[command(flatten)]
+    pub input: super::InputArgs,
+}
+
+/// Runs `evpose run`.
+pub fn run(a: &RunArgs) -> Result<()> {
+    if a.events.is_none() && a.input != super::InputArgs::default() {
+        bail!(
+            "--format/--width/--height/--time-unit describe --events; the bundled clip needs none"
+        );
+    }
+    let req = Request {
+        events: a.events.clone(),
+        open: a.input.options(),
+        model: a.model.clone(),
+        engine: a.engine,
+        cameras: a.cameras.clone(),
+        window_events: a.window_events,
+        window_ms: a.window_ms,
+        stride: a.stride,
+        points: a.points,
+        seed: a.seed,
+        smooth: (a.smooth == Switch::On).then_some(SmoothParams::DEFAULT),
+        gt: a.gt.clone(),
+        calibration: a.calibration.clone(),
+        capacity: a.max_window_events,
+    };
+    let plan = Plan::resolve(&req)?;
+    let d = plan.description.clone();
+    if !a.json {
+        eprintln!(
+            "{}\n  model {} ({:?} engine, {} points), windows of {}{}",
+            d.events,
+            d.model,
+            d.engine,
+            d.points,
+            d.window,
+            d.truth
+                .as_ref()
+                .map_or(String::new(), |t| format!(", ground truth {t}"))
+        );
+    }
+    let mut writers = a
+        .out
+        .iter()
+        .map(|p| PoseWriter::create(p))
+        .collect::<Result<Vec<_>>>()?;
+    let mut renderer = match &a.render {
+        Some(path) => {
+            let sizes: Vec<(u16, u16)> = plan
+                .options
+                .cameras
+                .iter()
+                .map(|c| c.rescale.sensor)
+                .collect();
+            Some(RunRenderer::create(
+                path,
+                &sizes,
+                a.render_scale,
+                plan.triangulates(),
+            )?)
+        }
+        None => None,
+    };
+    let bar = indicatif::ProgressBar::new_spinner();
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{spinner} {pos} windows {msg} [{elapsed}]")
+            .expect("a valid template"),
+    );
+    let summary = plan.run(|w, events, truth| {
+        bar.inc(1);
+        for out in &mut writers {
+            out.write(w)?;
+        }
+        if let Some(r) = &mut renderer {
+            r.add(w, events, truth)?;
+        }
+        if a.verbose {
+            bar.suspend(|| print_window(w, a.json))?;
+        }
+        Ok(())
+    })?;
+    bar.finish_and_clear();
+    for out in writers {
+        out.finish()?;
+    }
+    if a.json {
+        let v = serde_json::json!({ "run": d, "summary": summary });
+        println!("{}", serde_json::to_string(&v)?);
+    } else {
+        print_summary(&summary, d.synthetic);
+    }
+    if let (Some(path), Some(r)) = (&a.render, &renderer) {
+        eprintln!("wrote {} ({} frames)", path.display(), r.frames());
+    }
+    for p in &a.out {
+        eprintln!("wrote {}", p.display());
+    }
+    Ok(())
+}
+
+fn print_window(w: &RunWindow, json: bool) -> Result<()> {
+    if json {
+        println!("{}", serde_json::to_string(w)?);
+        return Ok(());
+    }
+    let cams: Vec<String> = w
+        .cameras
+        .iter()
+        .map(|c| {
+            let conf = c
+                .mean_confidence()
+                .map_or(String::new(), |m| format!(" conf {m:.2}"));
+            format!("cam {}: {} ev{conf}", c.camera, c.events)
+        })
+        .collect();
+    let err = w.error.as_ref().map_or(String::new(), |e| {
+        let d2: Vec<String> = e
+            .mpjpe2d_px
+            .iter()
+            .map(|(_, v)| format!("{v:.1}"))
+            .collect();
+        format!(
+            "  error 2-D {} px{}",
+            d2.join("/"),
+            e.mpjpe3d_mm
+                .map_or(String::new(), |v| format!(", 3-D {v:.0} mm"))
+        )
+    });
+    println!(
+        "window {:>4}  t {:>8.3}-{:<8.3} s  {}{}{}",
+        w.window,
+        w.t_us[0] as f64 * 1e-6,
+        w.t_us[1] as f64 * 1e-6,
+        cams.join("  "),
+        err,
+        if w.no_body == Some(true) {
+            "  no body"
+        } else {
+            ""
+        }
+    );
+    Ok(())
+}
+
+fn print_summary(s: &RunSummary, synthetic: bool) {
+    let cams: Vec<String> = s.cameras.iter().map(|c| c.to_string()).collect();
+    println!(
+        "{} windows, cameras {}, {} events{}",
+        s.windows,
+        cams.join(","),
+        s.events,
+        if s.dropped > 0 {
+            format!(" ({} dropped from over-full windows)", s.dropped)
+        } else {
+            String::new()
+        }
+    );
+    if let Some(c) = s.mean_confidence {
+        println!(
+            "mean joint confidence {c:.3}; {} of {} windows below {NO_BODY_CONFIDENCE} (no body)",
+            s.no_body_windows, s.windows
+        );
+    }
+    if let Some(e) = &s.errors {
+        let f = |v: Option<f64>, unit: &str| v.map_or("-".to_owned(), |v| format!("{v:.2} {unit}"));
+        println!(
+            "against ground truth ({} windows{}): MPJPE2D {} (unfiltered {}), MPJPE3D {} (unfiltered {})",
+            e.windows,
+            if synthetic { ", synthetic data: not DHP19 figures" } else { "" },
+            f(e.mpjpe2d_px, "px"),
+            f(e.mpjpe2d_raw_px, "px"),
+            f(e.mpjpe3d_mm, "mm"),
+            f(e.mpjpe3d_raw_mm, "mm"),
+        );
+    }
+    if s.no_body() {
+        println!(
+            "no body seen: {} of {} windows have a mean joint confidence below {NO_BODY_CONFIDENCE}; \
+             their joints are guesses",
+            s.no_body_windows, s.windows
+        );
+    }
+}

@@ -1,0 +1,453 @@
+//! `evpose run`, the main job: a recording in, per window and camera 2-D joints with their
+//! confidences, the temporal filter over windows, and with two or more calibrated cameras 3-D
+//! joints by confidence-weighted triangulation; errors against ground truth when the
+//! recording has some.
+//!
+//! The stream is read once, in batches, and cut into windows over all cameras together
+//! ([`windows::Cutter`]: by events or time, tumbling or sliding); each window's events of each
+//! selected camera go through that camera's estimator ([`camera`]: the core's per-window
+//! [`evpose_core::Session`], or tract); memory is one window of events plus the estimators.
+//! Output goes to a callback as [`RunWindow`]s, the schema [`output`] writes.
+
+pub mod camera;
+pub mod output;
+pub mod setup;
+pub mod truth;
+pub mod windows;
+
+use anyhow::{bail, Context, Result};
+use evpose_core::geometry::{triangulate_views, Camera};
+use evpose_core::pipeline::{Engine, Workspace};
+use evpose_core::smooth::{AxisState, SmoothParams, Smoother};
+use evpose_core::{Event, Joint2d, Plan};
+use serde::{Deserialize, Serialize};
+
+use crate::dataset::JOINTS;
+use crate::io::{Batch, EventReader};
+use camera::{CameraEstimator, Raw, Rescale};
+use truth::Truth;
+use windows::{Cutter, WindowEvents, WindowRule};
+
+/// Below this mean joint confidence a window is reported as showing no body. Measured with
+/// the bundled MCU model on the held-out synthetic set (camera 2): 12.6 % of the 1,027 windows
+/// with a person fall below it, 86 % of the 14 person-free windows (bouncing balls, a spinning
+/// stick) and all 11 windows of the real DAVIS346 street recording (cars).
+pub const NO_BODY_CONFIDENCE: f32 = 0.40;
+
+/// The smallest weight a view gets in triangulation: a joint no camera is sure of is still
+/// triangulated (from near-equal weights).
+pub const MIN_VIEW_WEIGHT: f64 = 1e-3;
+
+/// The heap buffers a host [`Workspace`] borrows, for engine `E`.
+pub struct Buffers<E: Engine> {
+    indices: Vec<u32>,
+    rows: Vec<[f32; 5]>,
+    scratch: Vec<E::Value>,
+    x: Vec<E::Value>,
+    y: Vec<E::Value>,
+    joints: Vec<Joint2d>,
+}
+
+impl<E: Engine> Buffers<E> {
+    /// Buffers for `plan` with `points` points per input, windows of up to `capacity` events
+    /// (`points` 0 keeps every point: up to one per event).
+    pub fn new(plan: &Plan<'_>, points: usize, capacity: usize) -> Self {
+        let rows = if points == 0 { capacity.max(1) } else { points };
+        Self {
+            indices: vec![0; rows],
+            rows: vec![[0.0; 5]; rows],
+            scratch: vec![E::Value::default(); plan.scratch_words()],
+            x: vec![E::Value::default(); plan.out_x_len()],
+            y: vec![E::Value::default(); plan.out_y_len()],
+            joints: vec![Joint2d::default(); plan.model().joints()],
+        }
+    }
+
+    /// The workspace over these buffers.
+    pub fn workspace(&mut self) -> Workspace<'_, E> {
+        Workspace {
+            indices: &mut self.indices,
+            rows: &mut self.rows,
+            scratch: &mut self.scratch,
+            x: &mut self.x,
+            y: &mut self.y,
+            joints: &mut self.joints,
+        }
+    }
+}
+
+/// One camera of a run.
+#[derive(Clone, Debug)]
+pub struct CameraSetup {
+    /// Camera id in the recording.
+    pub id: u8,
+    /// Its sensor size and the model's resolution.
+    pub rescale: Rescale,
+    /// Its calibration, for 3-D and for projecting ground truth.
+    pub calibration: Option<Camera>,
+}
+
+/// How a run cuts, filters and reports.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// The cameras to estimate.
+    pub cameras: Vec<CameraSetup>,
+    /// How windows are cut (over the events of all cameras of the recording).
+    pub rule: WindowRule,
+    /// The most events a time window holds.
+    pub capacity: usize,
+    /// The temporal filter; `None` reports the network's joints as they are.
+    pub smooth: Option<SmoothParams>,
+}
+
+/// One camera's pose in one window: a line of the output.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraPose {
+    /// Camera id.
+    pub camera: u8,
+    /// The camera's events in the window.
+    pub events: usize,
+    /// Points of its rasterized window.
+    pub points: usize,
+    /// Joints `[x, y]` in the sensor's pixels (DHP19's `(u, v)`: column, row from the top
+    /// left), model joint order; filtered when the filter is on.
+    pub joints: Vec<[f32; 2]>,
+    /// The network's joints before the filter (present when the filter is on).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub raw_joints: Option<Vec<[f32; 2]>>,
+    /// Confidence of each joint in [0, 1] (empty when the model gives none).
+    pub confidence: Vec<f32>,
+}
+
+impl CameraPose {
+    /// Mean joint confidence (`None` without confidences).
+    pub fn mean_confidence(&self) -> Option<f32> {
+        (!self.confidence.is_empty())
+            .then(|| self.confidence.iter().sum::<f32>() / self.confidence.len() as f32)
+    }
+}
+
+/// Errors of one window against ground truth.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct WindowError {
+    /// Mean 2-D error of each camera's visible joints, pixels (camera id, error).
+    pub mpjpe2d_px: Vec<(u8, f64)>,
+    /// Mean 3-D error of the triangulated joints, mm.
+    pub mpjpe3d_mm: Option<f64>,
+}
+
+/// One window's result: an object of `evpose run`'s output.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RunWindow {
+    /// Window index from 0.
+    pub window: usize,
+    /// Time span, µs ([`WindowEvents::t_us`]).
+    pub t_us: [i64; 2],
+    /// Events of every camera in the window.
+    pub events: usize,
+    /// Whether the window shows no body: the mean confidence over cameras and joints is below
+    /// [`NO_BODY_CONFIDENCE`] (`None` without confidences).
+    pub no_body: Option<bool>,
+    /// Each selected camera's pose.
+    pub cameras: Vec<CameraPose>,
+    /// 3-D joints `[x, y, z]`, mm in the calibration's world frame, from the (filtered)
+    /// joints of every calibrated camera, weighted by confidence; `null` for a joint that could
+    /// not be triangulated. Absent with fewer than two calibrated cameras.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub joints3d: Option<Vec<Option<[f64; 3]>>>,
+    /// Errors against ground truth (present when the recording has some).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<WindowError>,
+}
+
+/// Ground truth of one window, for pictures: the 3-D label and each camera's projection.
+#[derive(Clone, Debug)]
+pub struct WindowTruth {
+    /// Mean 3-D pose over the window, mm.
+    pub joints3d: [[f32; 3]; JOINTS],
+    /// Per selected camera (in order): 2-D label (integer pixels) and visibility.
+    pub cameras: Vec<([[f32; 2]; JOINTS], [u8; JOINTS])>,
+}
+
+/// Mean errors over a run.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Errors {
+    /// MPJPE2D of the reported (filtered) joints, pixels.
+    pub mpjpe2d_px: Option<f64>,
+    /// MPJPE2D of the network's joints before the filter.
+    pub mpjpe2d_raw_px: Option<f64>,
+    /// MPJPE3D of the reported 3-D joints, mm.
+    pub mpjpe3d_mm: Option<f64>,
+    /// MPJPE3D from the network's joints before the filter.
+    pub mpjpe3d_raw_mm: Option<f64>,
+    /// Windows with ground truth.
+    pub windows: usize,
+}
+
+/// What a run did.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct RunSummary {
+    /// Windows estimated.
+    pub windows: usize,
+    /// Cameras estimated.
+    pub cameras: Vec<u8>,
+    /// Events read (all cameras).
+    pub events: u64,
+    /// Events dropped from over-full time windows.
+    pub dropped: u64,
+    /// Mean joint confidence over all windows and cameras.
+    pub mean_confidence: Option<f64>,
+    /// Windows whose confidence says no body.
+    pub no_body_windows: usize,
+    /// Errors against ground truth, when there is some.
+    pub errors: Option<Errors>,
+}
+
+impl RunSummary {
+    /// Whether most windows show no body (`false` without confidences).
+    pub fn no_body(&self) -> bool {
+        self.windows > 0 && 2 * self.no_body_windows > self.windows
+    }
+}
+
+#[derive(Default)]
+struct Sums {
+    d2: (f64, u64),
+    d2_raw: (f64, u64),
+    d3: (f64, u64),
+    d3_raw: (f64, u64),
+    windows: usize,
+}
+
+fn mean((s, n): (f64, u64)) -> Option<f64> {
+    (n > 0).then(|| s / n as f64)
+}
+
+/// Triangulates each joint from the views of `cams` (`joints[i]` and `confidence[i]` of camera
+/// `i`); `None` when fewer than two cameras are calibrated.
+fn triangulate_window(
+    cams: &[CameraSetup],
+    joints: &[&[[f32; 2]]],
+    confidence: &[&[f32]],
+) -> Option<Vec<Option<[f64; 3]>>> {
+    let calibrated: Vec<usize> = (0..cams.len())
+        .filter(|&i| cams[i].calibration.is_some())
+        .collect();
+    if calibrated.len() < 2 {
+        return None;
+    }
+    let n = joints.iter().map(|j| j.len()).min().unwrap_or(0);
+    Some(
+        (0..n)
+            .map(|j| {
+                let views: Vec<(&Camera, (f64, f64), f64)> = calibrated
+                    .iter()
+                    .filter_map(|&i| {
+                        let cam = cams[i].calibration.as_ref()?;
+                        let [u, v] = joints[i][j];
+                        let w = confidence[i]
+                            .get(j)
+                            .map_or(1.0, |&c| f64::from(c).max(MIN_VIEW_WEIGHT));
+                        Some((cam, (f64::from(u), f64::from(v)), w))
+                    })
+                    .collect();
+                triangulate_views(&views).ok()
+            })
+            .collect(),
+    )
+}
+
+/// Mean 3-D distance of the triangulated joints to the label.
+fn error3d(joints: &[Option<[f64; 3]>], label: &[[f32; 3]; JOINTS]) -> (f64, u64) {
+    joints
+        .iter()
+        .zip(label)
+        .filter_map(|(p, g)| {
+            let p = (*p)?;
+            Some(
+                (0..3)
+                    .map(|k| (p[k] - f64::from(g[k])).powi(2))
+                    .sum::<f64>()
+                    .sqrt(),
+            )
+        })
+        .fold((0.0, 0), |(s, n), e| (s + e, n + 1))
+}
+
+/// Mean 2-D distance of the joints to the visible labels.
+fn error2d(joints: &[[f32; 2]], (label, mask): &([[f32; 2]; JOINTS], [u8; JOINTS])) -> (f64, u64) {
+    joints
+        .iter()
+        .zip(label)
+        .zip(mask)
+        .filter(|(_, &m)| m != 0)
+        .map(|((p, l), _)| {
+            let (dx, dy) = (f64::from(p[0] - l[0]), f64::from(p[1] - l[1]));
+            (dx * dx + dy * dy).sqrt()
+        })
+        .fold((0.0, 0), |(s, n), e| (s + e, n + 1))
+}
+
+fn add(acc: &mut (f64, u64), (s, n): (f64, u64)) {
+    acc.0 += s;
+    acc.1 += n;
+}
+
+/// Runs a recording: reads `reader` to its end, estimating every window of `opts.rule` with
+/// `estimators` (one per camera of `opts.cameras`, in order), and calls `on_window` with each
+/// window's result, the window's events and, with `truth`, its ground truth.
+pub fn run(
+    reader: &mut dyn EventReader,
+    estimators: &mut [Box<dyn CameraEstimator + '_>],
+    opts: &RunOptions,
+    truth: Option<&Truth>,
+    mut on_window: impl FnMut(&RunWindow, &WindowEvents<'_>, Option<&WindowTruth>) -> Result<()>,
+) -> Result<RunSummary> {
+    if estimators.len() != opts.cameras.len() {
+        bail!(
+            "{} estimators for {} cameras",
+            estimators.len(),
+            opts.cameras.len()
+        );
+    }
+    if opts.cameras.is_empty() {
+        bail!("no camera to estimate");
+    }
+    let mut cutter = Cutter::new(opts.rule, opts.capacity)?;
+    let mut state = vec![[AxisState::default(); 2 * JOINTS]; opts.cameras.len()];
+    let mut smoothers: Vec<Smoother<'_>> = state
+        .iter_mut()
+        .map(|s| Smoother::new(opts.smooth.unwrap_or_default(), s))
+        .collect();
+    let mut summary = RunSummary {
+        cameras: opts.cameras.iter().map(|c| c.id).collect(),
+        ..RunSummary::default()
+    };
+    let (mut conf_sum, mut conf_n) = (0f64, 0u64);
+    let mut sums = Sums::default();
+    let first_t = std::cell::Cell::new(None::<i64>);
+    let mut events_buf: Vec<Event> = Vec::new();
+
+    let mut emit = |w: &WindowEvents<'_>| -> Result<()> {
+        let label = truth.and_then(|t| t.label(w.t_us, first_t.get().unwrap_or(0)));
+        let mut poses = Vec::with_capacity(opts.cameras.len());
+        let mut raws = Vec::with_capacity(opts.cameras.len());
+        for ((cam, est), smoother) in opts
+            .cameras
+            .iter()
+            .zip(estimators.iter_mut())
+            .zip(smoothers.iter_mut())
+        {
+            events_buf.clear();
+            events_buf.extend(w.of_camera(cam.id).filter_map(|e| cam.rescale.event(e)));
+            let raw: Raw = est
+                .estimate(&events_buf)
+                .with_context(|| format!("window {} camera {}", w.index, cam.id))?;
+            let model_px: Vec<[f32; 2]> = raw
+                .joints
+                .iter()
+                .map(|j| [f32::from(j.x), f32::from(j.y)])
+                .collect();
+            let raw_joints: Vec<[f32; 2]> =
+                model_px.iter().map(|&p| cam.rescale.joint(p)).collect();
+            let joints = match opts.smooth {
+                Some(_) if raw.confidence.len() == raw.joints.len() => {
+                    let mut out = vec![[0f32; 2]; raw.joints.len()];
+                    smoother
+                        .update(w.t_us.1, &raw.joints, &raw.confidence, &mut out)
+                        .map_err(|e| anyhow::anyhow!("{e}"))?;
+                    out.iter().map(|&p| cam.rescale.joint(p)).collect()
+                }
+                _ => raw_joints.clone(),
+            };
+            poses.push(CameraPose {
+                camera: cam.id,
+                events: raw.events,
+                points: raw.points,
+                joints,
+                raw_joints: opts.smooth.map(|_| raw_joints.clone()),
+                confidence: raw.confidence,
+            });
+            raws.push(raw_joints);
+        }
+        let confs: Vec<&[f32]> = poses.iter().map(|p| p.confidence.as_slice()).collect();
+        let out_joints: Vec<&[[f32; 2]]> = poses.iter().map(|p| p.joints.as_slice()).collect();
+        let joints3d = triangulate_window(&opts.cameras, &out_joints, &confs);
+        let all: Vec<f32> = confs.iter().flat_map(|c| c.iter().copied()).collect();
+        let no_body = (!all.is_empty()).then(|| {
+            let m = all.iter().sum::<f32>() / all.len() as f32;
+            conf_sum += all.iter().map(|&c| f64::from(c)).sum::<f64>();
+            conf_n += all.len() as u64;
+            m < NO_BODY_CONFIDENCE
+        });
+        summary.no_body_windows += usize::from(no_body == Some(true));
+        let window_truth = label.map(|l| WindowTruth {
+            joints3d: l,
+            cameras: opts
+                .cameras
+                .iter()
+                .map(|c| match &c.calibration {
+                    Some(cal) => crate::dataset::project_label(cal, &l),
+                    None => ([[0.0; 2]; JOINTS], [0; JOINTS]),
+                })
+                .collect(),
+        });
+        let error = window_truth.as_ref().map(|t| {
+            sums.windows += 1;
+            let mut e = WindowError::default();
+            for (i, p) in poses.iter().enumerate() {
+                let d = error2d(&p.joints, &t.cameras[i]);
+                add(&mut sums.d2, d);
+                add(&mut sums.d2_raw, error2d(&raws[i], &t.cameras[i]));
+                if let Some(m) = mean(d) {
+                    e.mpjpe2d_px.push((p.camera, m));
+                }
+            }
+            if let Some(j3) = &joints3d {
+                let d = error3d(j3, &t.joints3d);
+                add(&mut sums.d3, d);
+                e.mpjpe3d_mm = mean(d);
+                let raw_refs: Vec<&[[f32; 2]]> = raws.iter().map(|r| r.as_slice()).collect();
+                if let Some(r3) = triangulate_window(&opts.cameras, &raw_refs, &confs) {
+                    add(&mut sums.d3_raw, error3d(&r3, &t.joints3d));
+                }
+            }
+            e
+        });
+        let result = RunWindow {
+            window: w.index,
+            t_us: [w.t_us.0, w.t_us.1],
+            events: w.len(),
+            no_body,
+            cameras: poses,
+            joints3d,
+            error,
+        };
+        on_window(&result, w, window_truth.as_ref())
+    };
+
+    let mut batch = Batch::default();
+    while reader.read_batch(&mut batch)? {
+        summary.events += batch.events.len() as u64;
+        for (&c, &e) in batch.cameras.iter().zip(&batch.events) {
+            if first_t.get().is_none() {
+                first_t.set(Some(e.t));
+            }
+            cutter.push(c, e, &mut emit)?;
+        }
+    }
+    cutter.finish(&mut emit)?;
+    summary.windows = cutter.windows();
+    summary.dropped = cutter.dropped();
+    summary.mean_confidence = (conf_n > 0).then(|| conf_sum / conf_n as f64);
+    if truth.is_some() {
+        summary.errors = Some(Errors {
+            mpjpe2d_px: mean(sums.d2),
+            mpjpe2d_raw_px: mean(sums.d2_raw),
+            mpjpe3d_mm: mean(sums.d3),
+            mpjpe3d_raw_mm: mean(sums.d3_raw),
+            windows: sums.windows,
+        });
+    }
+    Ok(summary)
+}
