@@ -13,7 +13,7 @@
 use std::collections::BTreeMap;
 
 use anyhow::{bail, Result};
-use evpose_core::geometry::{triangulate, Camera};
+use evpose_core::geometry::{triangulate, triangulate_views, Camera};
 use serde::Serialize;
 
 use crate::dataset::{Dataset, JOINTS};
@@ -134,6 +134,11 @@ pub struct EvalReport {
     pub mpjpe2d_px: Option<f64>,
     /// MPJPE3D over everything, mm.
     pub mpjpe3d_mm: Option<f64>,
+    /// MPJPE3D with each view weighted by the joint's confidence in it
+    /// ([`evpose_core::geometry::triangulate_views`], as `evpose run` triangulates), mm; `None`
+    /// without confidences.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mpjpe3d_weighted_mm: Option<f64>,
     /// Samples (windows × cameras) evaluated.
     pub samples: usize,
     /// Windows triangulated for the 3-D figure.
@@ -171,17 +176,20 @@ pub fn joint_errors_2d(
 }
 
 /// Computes the report from one prediction per dataset sample. `cameras` maps the two
-/// channels of the 3-D figure (DHP19: 2 and 3) to their calibration.
+/// channels of the 3-D figure (DHP19: 2 and 3) to their calibration; with each sample's joint
+/// `confidence`, the 3-D figure is also computed with confidence-weighted triangulation.
 pub fn evaluate(
     ds: &Dataset,
     predictions: &[Joints2d],
+    confidence: Option<&[[f32; JOINTS]]>,
     front: [(u8, &Camera); 2],
     predictor: String,
     samples_per_second: f64,
 ) -> Result<EvalReport> {
-    if predictions.len() != ds.len() {
+    if predictions.len() != ds.len() || confidence.is_some_and(|c| c.len() != ds.len()) {
         bail!("{} predictions for {} samples", predictions.len(), ds.len());
     }
+    let mut weighted = (0f64, 0u64);
     let mut all = Acc::default();
     let mut per_camera: BTreeMap<u8, Acc> = BTreeMap::new();
     let mut per_movement: BTreeMap<u16, Acc> = BTreeMap::new();
@@ -220,14 +228,25 @@ pub fn evaluate(
                 f64::from(predictions[b][j][0]),
                 f64::from(predictions[b][j][1]),
             );
+            let g = ds.gt3d[a][j];
+            let dist = |x: [f64; 3]| {
+                (0..3)
+                    .map(|k| (x[k] - f64::from(g[k])).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+            };
+            if let Some(c) = confidence {
+                let w = |i: usize| f64::from(c[i][j]).max(crate::run::MIN_VIEW_WEIGHT);
+                let views = [(front[0].1, pa, w(a)), (front[1].1, pb, w(b))];
+                if let Ok(x) = triangulate_views(&views) {
+                    weighted.0 += dist(x);
+                    weighted.1 += 1;
+                }
+            }
             let Ok(x) = triangulate(front[0].1, pa, front[1].1, pb) else {
                 continue;
             };
-            let g = ds.gt3d[a][j];
-            let e = (0..3)
-                .map(|k| (x[k] - f64::from(g[k])).powi(2))
-                .sum::<f64>()
-                .sqrt();
+            let e = dist(x);
             for acc in [
                 &mut all,
                 per_movement.entry(ds.movement[a]).or_default(),
@@ -244,6 +263,7 @@ pub fn evaluate(
         synthetic: ds.manifest.synthetic,
         mpjpe2d_px: total.mpjpe2d_px,
         mpjpe3d_mm: total.mpjpe3d_mm,
+        mpjpe3d_weighted_mm: (weighted.1 > 0).then(|| weighted.0 / weighted.1 as f64),
         samples: ds.len(),
         windows,
         per_camera: per_camera

@@ -255,7 +255,8 @@ fn mpjpe_on_hand_computed_cases() {
         }],
     );
     let pred = vec![[[103.0, 104.0]; JOINTS], label];
-    let r = eval::evaluate(&ds, &pred, front, "test".into(), 0.0).unwrap();
+    let r = eval::evaluate(&ds, &pred, None, front, "test".into(), 0.0).unwrap();
+    assert_eq!(r.mpjpe3d_weighted_mm, None);
     assert!((r.mpjpe2d_px.unwrap() - 65.0 / 25.0).abs() < 1e-12);
     assert_eq!(r.per_camera[&2].mpjpe2d_px, Some(5.0));
     assert_eq!(r.per_camera[&3].mpjpe2d_px, Some(0.0));
@@ -272,6 +273,7 @@ fn mpjpe_on_hand_computed_cases() {
     let r = eval::evaluate(
         &ds,
         &[proj(&cams[2]), proj(&cams[3])],
+        None,
         front,
         "t".into(),
         0.0,
@@ -279,11 +281,39 @@ fn mpjpe_on_hand_computed_cases() {
     .unwrap();
     assert_eq!(r.windows, 1);
     assert!(r.mpjpe3d_mm.unwrap() < 0.5, "{:?}", r.mpjpe3d_mm);
+    // Confidence-weighted: exact views stay exact whatever the weights; with camera 3's view
+    // off by 8 px, trusting camera 2 (0.9 against 0.1) is closer than trusting both equally.
+    let conf = [[0.9f32; JOINTS], [0.1; JOINTS]];
+    let r = eval::evaluate(
+        &ds,
+        &[proj(&cams[2]), proj(&cams[3])],
+        Some(&conf),
+        front,
+        "t".into(),
+        0.0,
+    )
+    .unwrap();
+    assert!(r.mpjpe3d_weighted_mm.unwrap() < 0.5);
+    let mut off = proj(&cams[3]);
+    for p in &mut off {
+        p[0] += 8.0;
+    }
+    let [equal, weighted] = [None, Some(&conf[..])]
+        .map(|c| eval::evaluate(&ds, &[proj(&cams[2]), off], c, front, "t".into(), 0.0).unwrap());
+    assert_eq!(
+        equal.mpjpe3d_mm, weighted.mpjpe3d_mm,
+        "the plain figure ignores weights"
+    );
+    assert!(
+        weighted.mpjpe3d_weighted_mm.unwrap() < equal.mpjpe3d_mm.unwrap(),
+        "{weighted:?} {equal:?}"
+    );
     // Moved 100 mm along z, the error is 100 mm.
     ds.gt3d = vec![[[100.0, -50.0, 1000.0]; JOINTS]; 2];
     let r = eval::evaluate(
         &ds,
         &[proj(&cams[2]), proj(&cams[3])],
+        None,
         front,
         "t".into(),
         0.0,
@@ -495,6 +525,7 @@ fn the_per_joint_chart_draws_one_bar_per_joint_and_figure() {
     let r = eval::evaluate(
         &ds,
         &[pred, pred],
+        None,
         [(2, &cams[2]), (3, &cams[3])],
         "t".into(),
         0.0,

@@ -218,7 +218,11 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
     };
     let front = [(fa.0, &fa.1), (fb.0, &fb.1)];
     let joints: Vec<eval::Joints2d> = predictions.iter().map(|p| p.joints).collect();
-    let mut report = eval::evaluate(&ds, &joints, front, predictor.clone(), rate)?;
+    // The baseline has no confidences (they are all 1): no weighted figure.
+    let confidence: Vec<[f32; dataset::JOINTS]> =
+        predictions.iter().map(|p| p.confidence).collect();
+    let weights = a.baseline.is_none().then_some(confidence.as_slice());
+    let mut report = eval::evaluate(&ds, &joints, weights, front, predictor.clone(), rate)?;
     if a.baseline.is_none() {
         let sum: f64 = predictions
             .iter()
@@ -234,7 +238,9 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
             "{predictor}, smoothed (min cut-off {} Hz, beta {}, full confidence {})",
             p.min_cutoff_hz, p.beta, p.full_confidence
         );
-        report.smoothed = Some(Box::new(eval::evaluate(&ds, &smoothed, front, name, rate)?));
+        report.smoothed = Some(Box::new(eval::evaluate(
+            &ds, &smoothed, weights, front, name, rate,
+        )?));
     }
     if let Some(path) = &a.json {
         std::fs::write(path, serde_json::to_string_pretty(&report)?)?;
@@ -285,6 +291,9 @@ fn print_report(r: &EvalReport) {
             String::new()
         }
     );
+    if let Some(w) = r.mpjpe3d_weighted_mm {
+        println!("  MPJPE3D with confidence-weighted triangulation: {w:.2} mm");
+    }
     for (c, m) in &r.per_camera {
         println!("  camera {c}: {} px", fmt(m.mpjpe2d_px));
     }
@@ -316,11 +325,13 @@ fn print_report(r: &EvalReport) {
             _ => String::new(),
         };
         println!(
-            "MPJPE2D {} px{}; MPJPE3D {} mm{}",
+            "MPJPE2D {} px{}; MPJPE3D {} mm{}; confidence-weighted {} mm{}",
             fmt(s.mpjpe2d_px),
             gain(r.mpjpe2d_px, s.mpjpe2d_px),
             fmt(s.mpjpe3d_mm),
-            gain(r.mpjpe3d_mm, s.mpjpe3d_mm)
+            gain(r.mpjpe3d_mm, s.mpjpe3d_mm),
+            fmt(s.mpjpe3d_weighted_mm),
+            gain(r.mpjpe3d_weighted_mm, s.mpjpe3d_weighted_mm)
         );
     }
 }
