@@ -193,3 +193,32 @@ fn the_preprocessing_contract_travels_with_the_model() {
         Err(ModelError::Header(_))
     ));
 }
+
+/// The `fuzz/` target `blob` parses each input as is and with its length and CRC-32 made right;
+/// inputs it found that crashed are kept in `tests/fixtures/fuzz/` and must stay errors.
+#[test]
+fn blobs_found_by_the_fuzzer_are_errors() {
+    use evpose_core::model::{header, CRC};
+    let fixed = |bytes: &[u8]| {
+        let mut b = bytes.to_vec();
+        let total = (b.len() as u32).to_le_bytes();
+        b[header::TOTAL..header::TOTAL + 4].copy_from_slice(&total);
+        let crc = CRC.checksum(&b[header::CRC_FROM..]).to_le_bytes();
+        b[header::CRC..header::CRC + 4].copy_from_slice(&crc);
+        b
+    };
+    // An int8 point layer reading the input features with i8 weights: the engine reads the
+    // input only through i16 weights, and indexed the activations at -1 (a panic) before parse
+    // refused it.
+    let bytes = std::fs::read(fixtures().join("fuzz/blob-int8-layer-on-input.evq")).unwrap();
+    let blob = AlignedBlob::new(&fixed(&bytes));
+    match Model::parse(blob.bytes()) {
+        Err(ModelError::Layer { reason, .. }) => {
+            assert!(
+                reason.contains("input features take i16 weights"),
+                "{reason}"
+            )
+        }
+        other => panic!("expected a layer error, got {other:?}"),
+    }
+}

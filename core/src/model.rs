@@ -536,6 +536,13 @@ impl<'a> Model<'a> {
                     "i16 weights only on layers reading the input features alone",
                 ));
             }
+            // The int8 engine reads the input features only through i16 weights (found by the
+            // `blob` fuzz target: an int8 layer on the input indexed before the activations).
+            if int8 && d.sources == 1 && weight_type != WeightType::I16 {
+                return Err(err(
+                    "an int8 model's layers reading the input features take i16 weights",
+                ));
+            }
         } else if d.sources != 0 {
             return Err(err("only point layers have sources"));
         }
