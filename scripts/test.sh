@@ -6,9 +6,9 @@ cd "$(dirname "$0")/.."
 
 as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 
-# Rust components and the Cortex-M7 target (firmware build, QEMU tests).
+# Rust components and the Cortex-M targets (firmware build, QEMU tests, core builds).
 rustup component add rustfmt clippy >/dev/null 2>&1 || true
-rustup target add thumbv7em-none-eabihf
+rustup target add thumbv6m-none-eabi thumbv7em-none-eabihf thumbv8m.main-none-eabihf
 
 # QEMU for the firmware test.
 if ! command -v qemu-system-arm >/dev/null 2>&1; then
@@ -34,4 +34,6 @@ cargo fmt --manifest-path firmware/Cargo.toml -- --check
 cargo clippy --workspace --all-targets --locked -- -D warnings
 # The runtime builds without tract (feature `onnx` off): readers, pose, rasterization, budgets.
 cargo clippy -p evpose-host --no-default-features --all-targets --locked -- -D warnings
+# The core on every Cortex-M target family, without and with its features.
+bash scripts/build-core-targets.sh
 cargo test --workspace --locked
