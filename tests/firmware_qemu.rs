@@ -6,7 +6,8 @@
 //! event stream through `evpose-core` on the host with the same storage, seed and model blob,
 //! and asserts identical windows, point clouds, network inputs, head accumulators (CRC-32) and
 //! joints. It fails, never skips, when QEMU or the target is missing: `scripts/test.sh` installs
-//! both. It also checks that the image has no heap, and prints the firmware's figures
+//! both. It also checks that the image has no heap and no panic path beyond those
+//! `firmware/panic-paths.txt` lists, and prints the firmware's figures
 //! (instructions per stage, per point-layer MAC, flash, RAM, stack); run with `--nocapture`.
 //!
 //! This file also holds the reference codec of the firmware's `EVS1` event stream (format in
@@ -552,6 +553,40 @@ fn firmware_matches_the_host_core_under_qemu() {
     for needle in [".heap", "__rust_alloc", "__rg_alloc"] {
         assert!(!map.contains(needle), "the linker map mentions {needle}");
     }
+
+    // Panic paths: every function that calls into the panic machinery is one that
+    // `firmware/panic-paths.txt` lists (and firmware/README.md explains): a new one fails here.
+    let listed = std::fs::read_to_string(firmware_dir().join("panic-paths.txt")).unwrap();
+    let listed: std::collections::BTreeSet<&str> = listed
+        .lines()
+        .filter(|l| !l.trim().is_empty() && !l.starts_with('#'))
+        .collect();
+    let found: Vec<String> = image
+        .panic_paths
+        .iter()
+        .map(|p| format!("{} -> {}", p.caller, p.panics))
+        .collect();
+    let new: Vec<&String> = found
+        .iter()
+        .filter(|p| !listed.contains(p.as_str()))
+        .collect();
+    assert!(
+        new.is_empty(),
+        "panic paths not in firmware/panic-paths.txt (remove them, or list and explain them):\n{}",
+        new.iter()
+            .map(|p| p.as_str())
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
+    let gone: Vec<&&str> = listed
+        .iter()
+        .filter(|l| !found.iter().any(|f| f == *l))
+        .collect();
+    eprintln!(
+        "panic paths: {} ({} listed paths no longer in the image: {gone:?})",
+        found.len(),
+        gone.len()
+    );
 
     // The figures (goals, not asserts): see the README's "Firmware (Cortex-M7)" section.
     eprintln!("firmware output:\n{text}");

@@ -131,6 +131,8 @@ pub struct ImageBudget {
     pub largest_ram: Vec<Symbol>,
     /// Largest objects in flash, largest first.
     pub largest_flash: Vec<Symbol>,
+    /// Functions that call into the panic machinery ([`panic_paths`]; Thumb-2 images).
+    pub panic_paths: Vec<PanicPath>,
 }
 
 /// The report of `evpose budget`.
@@ -221,6 +223,7 @@ const SHT_NOBITS: u32 = 8;
 const SHF_WRITE: u32 = 1;
 const SHF_ALLOC: u32 = 2;
 const STT_OBJECT: u8 = 1;
+const STT_FUNC: u8 = 2;
 /// Symbols that only exist when the image has a global allocator.
 const ALLOCATOR_SYMBOLS: [&str; 5] = [
     "__rust_alloc",
@@ -234,7 +237,7 @@ struct Elf<'a> {
     bytes: &'a [u8],
 }
 
-impl Elf<'_> {
+impl<'a> Elf<'a> {
     fn u16(&self, o: usize) -> Result<u16> {
         let b = self
             .bytes
@@ -249,7 +252,7 @@ impl Elf<'_> {
             .ok_or_else(|| anyhow!("truncated at {o}"))?;
         Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
     }
-    fn cstr(&self, o: usize) -> Result<&str> {
+    fn cstr(&self, o: usize) -> Result<&'a str> {
         let tail = self
             .bytes
             .get(o..)
@@ -269,20 +272,8 @@ struct RawSection {
     link: u32,
 }
 
-/// Reads an ELF32 little-endian image's sections, symbols and heap markers.
-pub fn image_budget(path: &Path) -> Result<ImageBudget> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    image_budget_bytes(&bytes, &path.display().to_string())
-        .with_context(|| format!("{}: not a readable 32-bit ELF image", path.display()))
-}
-
-fn image_budget_bytes(bytes: &[u8], name: &str) -> Result<ImageBudget> {
-    let elf = Elf { bytes };
-    ensure!(bytes.starts_with(b"\x7fELF"), "no ELF magic");
-    ensure!(
-        bytes.get(4) == Some(&1) && bytes.get(5) == Some(&1),
-        "not a 32-bit little-endian ELF"
-    );
+/// The section headers of an ELF32 image, with their names.
+fn read_sections(elf: &Elf<'_>) -> Result<Vec<RawSection>> {
     let shoff = elf.u32(0x20)? as usize;
     let shentsize = usize::from(elf.u16(0x2E)?);
     let shnum = usize::from(elf.u16(0x30)?);
@@ -317,6 +308,173 @@ fn image_budget_bytes(bytes: &[u8], name: &str) -> Result<ImageBudget> {
         raw.push(s);
     }
 
+    Ok(raw)
+}
+
+/// One symbol-table entry.
+struct RawSymbol<'a> {
+    name: &'a str,
+    value: u32,
+    size: u32,
+    info: u8,
+    shndx: usize,
+}
+
+/// The symbol table of an ELF32 image (empty when it has none).
+fn read_symbols<'a>(elf: &Elf<'a>, raw: &[RawSection]) -> Result<Vec<RawSymbol<'a>>> {
+    let Some(symtab) = raw.iter().find(|s| s.kind == SHT_SYMTAB) else {
+        return Ok(Vec::new());
+    };
+    let strtab = raw
+        .get(symtab.link as usize)
+        .ok_or_else(|| anyhow!("symbol table without strings"))?
+        .offset as usize;
+    (0..(symtab.size / 16) as usize)
+        .map(|i| {
+            let o = symtab.offset as usize + i * 16;
+            Ok(RawSymbol {
+                name: elf.cstr(strtab + elf.u32(o)? as usize)?,
+                value: elf.u32(o + 4)?,
+                size: elf.u32(o + 8)?,
+                info: *elf.bytes.get(o + 12).unwrap_or(&0),
+                shndx: usize::from(elf.u16(o + 14)?),
+            })
+        })
+        .collect()
+}
+
+/// Functions of the panic machinery, by demangled name: what a reachable panic calls.
+const PANIC_MACHINERY: [&str; 9] = [
+    "core::panicking::",
+    "core::slice::index::",
+    "core::slice::copy_from_slice_impl::len_mismatch_fail",
+    "core::option::unwrap_failed",
+    "core::option::expect_failed",
+    "core::result::unwrap_failed",
+    "core::slice::sort::shared::smallsort::panic_on_ord_violation",
+    "core::cell::panic_already",
+    "rust_begin_unwind",
+];
+
+/// One panic path of an image: a function outside the panic machinery that calls (or
+/// tail-calls) into it.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize)]
+pub struct PanicPath {
+    /// The calling function, demangled, without its hash.
+    pub caller: String,
+    /// The panic function it calls, demangled, without its hash.
+    pub panics: String,
+}
+
+/// The panic paths of a Thumb-2 (Cortex-M) image: every `BL`/`B.W` (and conditional `B.W`)
+/// from a function outside the panic machinery ([`PANIC_MACHINERY`]) to one inside it, found
+/// by decoding each function's instructions from the symbol table. Calls through pointers are
+/// not seen (the firmware makes none into the machinery).
+pub fn panic_paths(path: &Path) -> Result<Vec<PanicPath>> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let elf = Elf { bytes: &bytes };
+    ensure!(
+        bytes.starts_with(b"\x7fELF"),
+        "{}: no ELF magic",
+        path.display()
+    );
+    let raw = read_sections(&elf)?;
+    let symbols = read_symbols(&elf, &raw)?;
+    Ok(find_panic_paths(&bytes, &raw, &symbols))
+}
+
+fn find_panic_paths(bytes: &[u8], raw: &[RawSection], symbols: &[RawSymbol<'_>]) -> Vec<PanicPath> {
+    let funcs: Vec<(String, &RawSymbol<'_>)> = symbols
+        .iter()
+        .filter(|s| s.info & 0xF == STT_FUNC && s.size > 0)
+        .map(|s| (format!("{:#}", rustc_demangle::demangle(s.name)), s))
+        .collect();
+    let is_panic = |n: &str| PANIC_MACHINERY.iter().any(|p| n.starts_with(p));
+    let targets: std::collections::BTreeMap<u32, &str> = funcs
+        .iter()
+        .filter(|(n, _)| is_panic(n))
+        .map(|(n, s)| (s.value & !1, n.as_str()))
+        .collect();
+    let mut out = std::collections::BTreeSet::new();
+    for (caller, s) in funcs.iter().filter(|(n, _)| !is_panic(n)) {
+        let Some(sec) = raw.get(s.shndx) else {
+            continue;
+        };
+        let start = (s.value & !1).wrapping_sub(sec.addr) as usize + sec.offset as usize;
+        let Some(code) = bytes.get(start..start + s.size as usize) else {
+            continue;
+        };
+        let mut i = 0;
+        while i + 2 <= code.len() {
+            let hw1 = u16::from_le_bytes([code[i], code[i + 1]]);
+            if hw1 >> 11 < 0b11101 {
+                i += 2; // a 16-bit instruction
+                continue;
+            }
+            let Some(hw2) = code
+                .get(i + 2..i + 4)
+                .map(|b| u16::from_le_bytes([b[0], b[1]]))
+            else {
+                break;
+            };
+            let pc = (s.value & !1).wrapping_add(i as u32 + 4);
+            if let Some(t) = thumb2_branch_target(hw1, hw2, pc) {
+                if let Some(p) = targets.get(&t) {
+                    out.insert(PanicPath {
+                        caller: caller.clone(),
+                        panics: (*p).to_string(),
+                    });
+                }
+            }
+            i += 4;
+        }
+    }
+    out.into_iter().collect()
+}
+
+/// The target of a Thumb-2 `BL` (T1), `B.W` (T4) or conditional `B.W` (T3) at `pc` (its
+/// address + 4); `None` for any other instruction.
+fn thumb2_branch_target(hw1: u16, hw2: u16, pc: u32) -> Option<u32> {
+    if hw1 >> 11 != 0b11110 || hw2 >> 15 != 1 {
+        return None;
+    }
+    let (h1, h2) = (u32::from(hw1), u32::from(hw2));
+    let s = (h1 >> 10) & 1;
+    let (j1, j2) = ((h2 >> 13) & 1, (h2 >> 11) & 1);
+    let imm11 = h2 & 0x7FF;
+    let offset = match (hw2 >> 12) & 0b101 {
+        // BL (T1) and B.W (T4): 11110 S imm10 / 1 1|0 J1 1 J2 imm11.
+        0b101 | 0b001 => {
+            let (i1, i2) = (!(j1 ^ s) & 1, !(j2 ^ s) & 1);
+            let imm = (s << 24) | (i1 << 23) | (i2 << 22) | ((h1 & 0x3FF) << 12) | (imm11 << 1);
+            ((imm << 7) as i32) >> 7
+        }
+        // B<cond>.W (T3): 11110 S cond imm6 / 10 J1 0 J2 imm11 (cond 111x is not a branch).
+        0b000 if (h1 >> 7) & 0b111 != 0b111 => {
+            let imm = (s << 20) | (j2 << 19) | (j1 << 18) | ((h1 & 0x3F) << 12) | (imm11 << 1);
+            ((imm << 11) as i32) >> 11
+        }
+        _ => return None,
+    };
+    Some(pc.wrapping_add(offset as u32))
+}
+
+/// Reads an ELF32 little-endian image's sections, symbols and heap markers.
+pub fn image_budget(path: &Path) -> Result<ImageBudget> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    image_budget_bytes(&bytes, &path.display().to_string())
+        .with_context(|| format!("{}: not a readable 32-bit ELF image", path.display()))
+}
+
+fn image_budget_bytes(bytes: &[u8], name: &str) -> Result<ImageBudget> {
+    let elf = Elf { bytes };
+    ensure!(bytes.starts_with(b"\x7fELF"), "no ELF magic");
+    ensure!(
+        bytes.get(4) == Some(&1) && bytes.get(5) == Some(&1),
+        "not a 32-bit little-endian ELF"
+    );
+    let raw = read_sections(&elf)?;
+
     let mut sections = Vec::new();
     let (mut flash, mut ram) = (0u64, 0u64);
     let mut heap = Vec::new();
@@ -342,33 +500,22 @@ fn image_budget_bytes(bytes: &[u8], name: &str) -> Result<ImageBudget> {
 
     let (mut stack_start, mut stack_end) = (None, None);
     let mut objects = Vec::new();
-    if let Some(symtab) = raw.iter().find(|s| s.kind == SHT_SYMTAB) {
-        let strtab = raw
-            .get(symtab.link as usize)
-            .ok_or_else(|| anyhow!("symbol table without strings"))?
-            .offset as usize;
-        for i in 0..(symtab.size / 16) as usize {
-            let o = symtab.offset as usize + i * 16;
-            let name = elf.cstr(strtab + elf.u32(o)? as usize)?;
-            let value = elf.u32(o + 4)?;
-            let size = elf.u32(o + 8)?;
-            let info = *bytes.get(o + 12).unwrap_or(&0);
-            let shndx = usize::from(elf.u16(o + 14)?);
-            match name {
-                "_stack_start" => stack_start = Some(value),
-                "_stack_end" => stack_end = Some(value),
-                n if ALLOCATOR_SYMBOLS.contains(&n) => heap.push(format!("symbol {n}")),
-                _ => {}
-            }
-            if info & 0xF == STT_OBJECT && size > 0 {
-                if let Some(s) = raw.get(shndx).filter(|s| s.flags & SHF_ALLOC != 0) {
-                    objects.push((
-                        demangle(name),
-                        size,
-                        s.name.clone(),
-                        s.flags & SHF_WRITE != 0,
-                    ));
-                }
+    let symbols = read_symbols(&elf, &raw)?;
+    for sym in &symbols {
+        match sym.name {
+            "_stack_start" => stack_start = Some(sym.value),
+            "_stack_end" => stack_end = Some(sym.value),
+            n if ALLOCATOR_SYMBOLS.contains(&n) => heap.push(format!("symbol {n}")),
+            _ => {}
+        }
+        if sym.info & 0xF == STT_OBJECT && sym.size > 0 {
+            if let Some(s) = raw.get(sym.shndx).filter(|s| s.flags & SHF_ALLOC != 0) {
+                objects.push((
+                    demangle(sym.name),
+                    sym.size,
+                    s.name.clone(),
+                    s.flags & SHF_WRITE != 0,
+                ));
             }
         }
     }
@@ -398,6 +545,7 @@ fn image_budget_bytes(bytes: &[u8], name: &str) -> Result<ImageBudget> {
         heap,
         largest_ram: largest(true),
         largest_flash: largest(false),
+        panic_paths: find_panic_paths(bytes, &raw, &symbols),
         sections,
     })
 }
@@ -438,6 +586,20 @@ pub fn demangle(name: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn decodes_thumb2_branches() {
+        // BL at 0x1000 to 0x2000: offset +0xffc.
+        assert_eq!(thumb2_branch_target(0xF000, 0xFFFE, 0x1004), Some(0x2000));
+        // B.W at 0x2000 back to 0x1000: offset -0x1004.
+        assert_eq!(thumb2_branch_target(0xF7FE, 0xBFFE, 0x2004), Some(0x1000));
+        // BEQ.W at 0x1000 to 0x1010 (cond 0000, offset +0xc).
+        assert_eq!(thumb2_branch_target(0xF000, 0x8006, 0x1004), Some(0x1010));
+        // Not branches: a data-processing instruction, BLX (T2), cond 111x.
+        assert_eq!(thumb2_branch_target(0xF000, 0x0000, 0x1004), None);
+        assert_eq!(thumb2_branch_target(0xF000, 0xC000, 0x1004), None);
+        assert_eq!(thumb2_branch_target(0xF380, 0x8000, 0x1004), None);
+    }
 
     #[test]
     fn demangles_legacy_names() {

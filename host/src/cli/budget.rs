@@ -187,6 +187,10 @@ fn print_image(i: &ImageBudget) {
             i.static_ram_bytes
         ),
     }
+    println!(
+        "panic paths: {} (functions that call into the panic machinery; --json lists them)",
+        i.panic_paths.len()
+    );
     if i.heap.is_empty() {
         println!("heap:  none (no heap section, no allocator symbols)");
     } else {
