@@ -4,8 +4,9 @@
 //! on QEMU's `mps2-an500` (Cortex-M7) with semihosting and `-icount shift=0`, decodes its defmt
 //! frames with `defmt-decoder` and the ELF's defmt table (what `defmt-print` does), runs the same
 //! event stream through `evpose-core` on the host with the same storage, seed and model blob,
-//! and asserts identical windows, point clouds, network inputs, head accumulators (CRC-32) and
-//! joints. It fails, never skips, when QEMU or the target is missing: `scripts/test.sh` installs
+//! and asserts identical windows, point clouds, network inputs, head accumulators (CRC-32),
+//! joints, joint confidences and temporally filtered joints (f32 bits). It fails, never skips,
+//! when QEMU or the target is missing: `scripts/test.sh` installs
 //! both. It also checks that the image has no heap and no panic path beyond those
 //! `firmware/panic-paths.txt` lists, and prints the firmware's figures
 //! (instructions per stage, per point-layer MAC, flash, RAM, stack); run with `--nocapture`.
@@ -22,6 +23,7 @@ use std::time::{Duration, Instant};
 use evpose_core::kernels::Kernels;
 use evpose_core::model::FEATURES;
 use evpose_core::pipeline::{PipelineError, I8};
+use evpose_core::smooth::{AxisState, SmoothParams, Smoother};
 use evpose_core::{
     scratch_words, Davis346Storage, Estimator, Event, Joint2d, Model, Plan, RasterConfig,
     Rasterizer, Session, Workspace,
@@ -399,6 +401,8 @@ struct WindowResult {
     joints: Vec<u16>,
     /// Joint confidences, as f32 bits (compared exactly).
     confidence_bits: Vec<u32>,
+    /// The temporally filtered joints (`core::smooth`), `[x, y]` per joint, as f32 bits.
+    filtered_bits: Vec<u32>,
 }
 
 /// The firmware's per-window lines: results and instructions.
@@ -431,6 +435,10 @@ fn firmware_windows(lines: &[String]) -> Vec<(WindowResult, String)> {
             .into_iter()
             .map(|v| v as u32)
             .collect();
+        let filtered_bits = list(" filtered_bits=[")
+            .into_iter()
+            .map(|v| v as u32)
+            .collect();
         out.push((
             WindowResult {
                 events: field(res, "events"),
@@ -442,6 +450,7 @@ fn firmware_windows(lines: &[String]) -> Vec<(WindowResult, String)> {
                 crc_heads: field(res, "crc_heads"),
                 joints,
                 confidence_bits,
+                filtered_bits,
             },
             find(" instructions ").clone(),
         ));
@@ -475,6 +484,8 @@ fn host_windows(events: &[Event], blob: &[u8]) -> Vec<WindowResult> {
         joints: &mut joints,
     };
     let scales = model.head_scales().expect("a version 3 blob");
+    let mut smooth_state = vec![AxisState::default(); 2 * j];
+    let mut smoother = Smoother::new(SmoothParams::DEFAULT, &mut smooth_state);
     let mut out = Vec::new();
     // Event by event, unlike the firmware's batches: windows do not depend on batching.
     for e in events {
@@ -484,6 +495,10 @@ fn host_windows(events: &[Event], blob: &[u8]) -> Vec<WindowResult> {
                 let d = e.digest();
                 let mut confidence = vec![0f32; e.joints.len()];
                 e.confidence(scales, &mut confidence).unwrap();
+                let mut filtered = vec![[0f32; 2]; e.joints.len()];
+                smoother
+                    .update(s.t_max, e.joints, &confidence, &mut filtered)
+                    .unwrap();
                 out.push(WindowResult {
                     events: s.events,
                     points: e.window.len(),
@@ -494,6 +509,7 @@ fn host_windows(events: &[Event], blob: &[u8]) -> Vec<WindowResult> {
                     crc_heads: d.heads,
                     joints: e.joints.iter().flat_map(|p| [p.x, p.y]).collect(),
                     confidence_bits: confidence.iter().map(|c| c.to_bits()).collect(),
+                    filtered_bits: filtered.iter().flatten().map(|v| v.to_bits()).collect(),
                 });
                 Ok::<(), PipelineError>(())
             })

@@ -127,22 +127,23 @@ impl<'s> Smoother<'s> {
         };
         self.last_t_us = Some(t_us);
         let dt = dt_us.map_or(0.0, |d| d as f32 * 1e-6);
-        for (j, ((joint, &c), o)) in joints
+        // Two state coordinates per joint, zipped (no indexing: no bounds check to panic).
+        for (((joint, &c), o), state) in joints
             .iter()
             .zip(confidence)
             .zip(out.iter_mut())
-            .enumerate()
+            .zip(self.state.chunks_exact_mut(2))
         {
             let gate = if p.full_confidence > 0.0 {
                 (c / p.full_confidence).clamp(0.0, 1.0)
             } else {
                 1.0
             };
-            for (axis, raw) in [f32::from(joint.x), f32::from(joint.y)]
-                .into_iter()
-                .enumerate()
+            for ((s, raw), o) in state
+                .iter_mut()
+                .zip([f32::from(joint.x), f32::from(joint.y)])
+                .zip(o.iter_mut())
             {
-                let s = &mut self.state[2 * j + axis];
                 if fresh {
                     *s = AxisState {
                         value: raw,
@@ -156,7 +157,7 @@ impl<'s> Smoother<'s> {
                     let a = alpha(cutoff, dt) * gate;
                     s.value += a * (raw - s.value);
                 }
-                o[axis] = s.value;
+                *o = s.value;
             }
         }
         Ok(())

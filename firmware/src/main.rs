@@ -5,7 +5,8 @@
 //! (`assets/street-00-02.evs`, three 7,500-event windows). It streams the events through the
 //! core's rasterizer in DMA-sized batches, samples each window to the blob's point count (256)
 //! with a fixed seed, runs the int8 engine, decodes the joints, and prints per window, over defmt
-//! (semihosting under QEMU): the joints, their confidences (f32 bits), CRC-32 checksums of the
+//! (semihosting under QEMU): the joints, their confidences and the temporally filtered joints
+//! (`core::smooth`; f32 bits), CRC-32 checksums of the
 //! point cloud, of the network input and of the heads' int32 accumulators, and the instructions
 //! of every stage.
 //! The test suite (`tests/firmware_qemu.rs`) runs the same windows through the core on the
@@ -32,6 +33,7 @@ use evpose_core::kernels::Kernels;
 use evpose_core::model::{DType, ModelError, FEATURES};
 use evpose_core::pipeline::{Estimate, PipelineError, Profiler, Step, I8};
 use evpose_core::raster::ConfigError;
+use evpose_core::smooth::{AxisState, SmoothParams, Smoother, StateTooSmall};
 use evpose_core::{
     scratch_words, Davis346Storage, Estimator, Event, InferError, Joint2d, Model, Plan,
     RasterConfig, Rasterizer, Session, Workspace,
@@ -105,6 +107,8 @@ enum Error {
     /// The blob carries no logit scales for its int8 heads (a version 1 or 2 blob), which joint
     /// confidences need.
     NoHeadScales,
+    /// The temporal filter's state does not hold the model's joints.
+    Smooth(StateTooSmall),
 }
 
 macro_rules! from {
@@ -275,6 +279,9 @@ fn run(per_tick: u64) -> Result<(), Error> {
         y: out_y,
         joints,
     };
+    // The temporal filter over windows (`core::smooth`, the host's defaults): 26 coordinates.
+    let mut smooth_state = [AxisState::default(); 2 * JOINTS];
+    let mut smoother = Smoother::new(SmoothParams::DEFAULT, &mut smooth_state);
     let mut source = EvsReader::new(&EVENTS[..])?;
     let h = *source.header();
     println!(
@@ -291,7 +298,7 @@ fn run(per_tick: u64) -> Result<(), Error> {
         // The whole batch at once: the session rasterizes with `extend` (the same windows as
         // pushing event by event) and estimates every window the batch closes.
         session.feed(&events[..n], &mut ws, &mut &clock, |e| {
-            report(&e, &clock, one_point, &model, scales)
+            report(&e, &clock, one_point, &model, scales, &mut smoother)
         })?;
     }
     let r = session.rasterizer();
@@ -307,14 +314,15 @@ fn run(per_tick: u64) -> Result<(), Error> {
     Ok(())
 }
 
-/// Prints one window's results, digests, joint confidences (their f32 bits, so that the host
-/// can compare them exactly) and instructions per stage.
+/// Prints one window's results, digests, joint confidences and filtered joints (their f32
+/// bits, so that the host can compare them exactly) and instructions per stage.
 fn report(
     e: &Estimate<'_>,
     clock: &StageClock,
     one_point: u64,
     model: &Model<'_>,
     scales: [f32; 2],
+    smoother: &mut Smoother<'_>,
 ) -> Result<(), Error> {
     let s = e.window.summary();
     let d = e.digest();
@@ -344,13 +352,25 @@ fn report(
         e.index,
         confidence.map(f32::to_bits)
     );
+    // The confidence-gated filter, at the window's last event.
+    let t = clock::ticks();
+    let mut filtered = [[0f32; 2]; JOINTS];
+    smoother
+        .update(s.t_max, e.joints, &confidence, &mut filtered)
+        .map_err(Error::Smooth)?;
+    let filter_instructions = clock.since(t);
+    let mut filtered_bits = [0u32; 2 * JOINTS];
+    for (bits, v) in filtered_bits.iter_mut().zip(filtered.iter().flatten()) {
+        *bits = v.to_bits();
+    }
+    println!("window={=u32} filtered_bits={}", e.index, filtered_bits);
     let [rasterize, sample, infer, decode, input] = clock.take();
     let n = e.input.len() as u64;
     let per_point = infer.saturating_sub(one_point) / (n - 1).max(1);
     let per_mac = per_point as f32 / model.macs_per_point() as f32;
     println!(
-        "window={=u32} instructions input={=u64} rasterize={=u64} sample={=u64} infer={=u64} decode={=u64} confidence={=u64} infer_one_point={=u64} per_point={=u64} per_point_layer_mac={=f32}",
-        e.index, input, rasterize, sample, infer, decode, confidence_instructions, one_point, per_point, per_mac
+        "window={=u32} instructions input={=u64} rasterize={=u64} sample={=u64} infer={=u64} decode={=u64} confidence={=u64} filter={=u64} infer_one_point={=u64} per_point={=u64} per_point_layer_mac={=f32}",
+        e.index, input, rasterize, sample, infer, decode, confidence_instructions, filter_instructions, one_point, per_point, per_mac
     );
     Ok(())
 }
