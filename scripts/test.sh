@@ -34,6 +34,6 @@ cargo fmt --manifest-path firmware/Cargo.toml -- --check
 cargo clippy --workspace --all-targets --locked -- -D warnings
 # The runtime builds without tract (feature `onnx` off): readers, pose, rasterization, budgets.
 cargo clippy -p evpose-host --no-default-features --all-targets --locked -- -D warnings
-# The core on every Cortex-M target family, without and with its features.
+# The core on every Cortex-M target family, without and with its features (checked).
 bash scripts/build-core-targets.sh
 cargo test --workspace --locked
