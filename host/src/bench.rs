@@ -195,3 +195,105 @@ pub fn infer(onnx: &Path, points: Option<&Path>, iterations: u32) -> Result<Infe
         },
     })
 }
+
+/// Result of `evpose bench pipeline`: the whole pipeline of `evpose run` (read → windows →
+/// rasterize → sample → infer → decode → confidence → filter → triangulate) on a recording.
+#[derive(Clone, Debug, Serialize)]
+pub struct PipelineBench {
+    /// The CPU, from `/proc/cpuinfo` (empty where it is not readable).
+    pub cpu: String,
+    /// What ran (recording, model, engine, window rule).
+    pub run: crate::run::setup::Description,
+    /// Events per pass over the recording (all cameras).
+    pub events: u64,
+    /// Windows per pass.
+    pub windows: usize,
+    /// Cameras estimated per window.
+    pub cameras: usize,
+    /// One thread: passes timed, and the median pass.
+    pub passes: u32,
+    /// One thread: median seconds per pass.
+    pub seconds_per_pass: f64,
+    /// One thread: events per second.
+    pub events_per_second: f64,
+    /// One thread: windows per second (each window estimated for every camera).
+    pub windows_per_second: f64,
+    /// One thread: milliseconds per window (all its cameras).
+    pub ms_per_window: f64,
+    /// Threads of the parallel run (recordings in parallel, one pass per task).
+    pub threads: usize,
+    /// All threads: events per second.
+    pub parallel_events_per_second: f64,
+    /// All threads: windows per second.
+    pub parallel_windows_per_second: f64,
+}
+
+/// The CPU's model name (Linux), for the figures it qualifies.
+pub fn cpu_model() -> String {
+    std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|t| {
+            t.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split_once(':'))
+                .map(|(_, v)| v.trim().to_string())
+        })
+        .unwrap_or_default()
+}
+
+/// Runs `req` `passes` times on one thread (median pass) and `passes × threads` times on
+/// `threads` threads (rayon; independent passes, as recordings in parallel).
+pub fn pipeline(
+    req: &crate::run::setup::Request,
+    passes: u32,
+    threads: usize,
+) -> Result<PipelineBench> {
+    use crate::run::setup::Plan;
+    use rayon::prelude::*;
+    let once = || -> Result<(f64, u64, usize)> {
+        let plan = Plan::resolve(req)?;
+        let start = Instant::now();
+        let s = plan.run(|_, _, _| Ok(()))?;
+        Ok((start.elapsed().as_secs_f64(), s.events, s.windows))
+    };
+    let first = Plan::resolve(req)?;
+    let (run, cameras) = (first.description.clone(), first.options.cameras.len());
+    drop(first);
+    once()?; // warm-up: page cache, allocations
+    let mut times = Vec::with_capacity(passes.max(1) as usize);
+    let (mut events, mut windows) = (0, 0);
+    for _ in 0..passes.max(1) {
+        let (t, e, w) = once()?;
+        (events, windows) = (e, w);
+        times.push(t);
+    }
+    times.sort_by(f64::total_cmp);
+    let median = times[times.len() / 2];
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads.max(1))
+        .build()?;
+    let tasks = passes.max(1) as usize * threads.max(1);
+    let start = Instant::now();
+    pool.install(|| {
+        (0..tasks)
+            .into_par_iter()
+            .map(|_| once().map(|_| ()))
+            .collect::<Result<Vec<()>>>()
+    })?;
+    let wall = start.elapsed().as_secs_f64();
+    Ok(PipelineBench {
+        cpu: cpu_model(),
+        run,
+        events,
+        windows,
+        cameras,
+        passes: passes.max(1),
+        seconds_per_pass: median,
+        events_per_second: events as f64 / median,
+        windows_per_second: windows as f64 / median,
+        ms_per_window: 1e3 * median / windows.max(1) as f64,
+        threads: threads.max(1),
+        parallel_events_per_second: (events * tasks as u64) as f64 / wall,
+        parallel_windows_per_second: (windows * tasks) as f64 / wall,
+    })
+}

@@ -772,3 +772,31 @@ fn run_cuts_windows_over_all_cameras() {
     let v = json(&[&args[..], &["--window-ms", "1", "--json"]].concat());
     assert!(v["summary"]["windows"].as_u64().unwrap() >= 4, "{v}");
 }
+
+#[test]
+fn bench_pipeline_times_the_whole_run() {
+    let v = json(&[
+        "bench",
+        "pipeline",
+        "--passes",
+        "1",
+        "--threads",
+        "2",
+        "--json",
+    ]);
+    // The bundled clip: 368,884 events in 12 windows of cameras 2 and 3.
+    assert_eq!(v["events"], 368_884);
+    assert_eq!(v["windows"], 12);
+    assert_eq!(v["cameras"], 2);
+    assert_eq!(v["threads"], 2);
+    for key in [
+        "events_per_second",
+        "windows_per_second",
+        "parallel_events_per_second",
+    ] {
+        assert!(v[key].as_f64().unwrap() > 0.0, "{key}: {v}");
+    }
+    let per_window = v["ms_per_window"].as_f64().unwrap();
+    let per_pass = v["seconds_per_pass"].as_f64().unwrap();
+    assert!((per_window * 12.0 - per_pass * 1e3).abs() < 1e-6 * per_pass * 1e3);
+}

@@ -164,6 +164,9 @@ pub enum BenchCommand {
     /// Inference latency: tract f32, core f32 and core int8, one thread.
     #[cfg(feature = "onnx")]
     Infer(model::BenchInferArgs),
+    /// The whole pipeline of `evpose run` on a recording: events/s and windows/s on one thread
+    /// and on all, against the 36 ms real-time criterion.
+    Pipeline(run::BenchPipelineArgs),
 }
 
 /// Arguments of `evpose bench raster`.
@@ -193,6 +196,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Convert(a) => convert(&a),
         Command::Raster(a) => raster(&a),
         Command::Bench(BenchCommand::Raster(a)) => bench_raster(&a),
+        Command::Bench(BenchCommand::Pipeline(a)) => run::bench_pipeline(&a),
         #[cfg(feature = "onnx")]
         Command::Bench(BenchCommand::Infer(a)) => model::bench_infer(&a),
         Command::Run(a) => run::run(&a),

@@ -271,3 +271,74 @@ fn print_summary(s: &RunSummary, synthetic: bool) {
         );
     }
 }
+
+/// Arguments of `evpose bench pipeline`.
+#[derive(Args, Debug)]
+pub struct BenchPipelineArgs {
+    /// Recording (default: the bundled clip).
+    #[arg(long)]
+    pub events: Option<PathBuf>,
+    /// Model (default: the bundled MCU model, int8).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Engine (default: by the model, as `evpose run`).
+    #[arg(long, value_enum)]
+    pub engine: Option<EngineKind>,
+    /// Cameras (default: as `evpose run`).
+    #[arg(long, value_delimiter = ',')]
+    pub cameras: Option<Vec<u8>>,
+    /// Timed passes on one thread (the median is reported); the parallel run makes this many
+    /// per thread.
+    #[arg(long, default_value_t = 5)]
+    pub passes: u32,
+    /// Threads of the parallel run (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+    /// How to read the recording.
+    #[command(flatten)]
+    pub input: super::InputArgs,
+}
+
+/// Runs `evpose bench pipeline`.
+pub fn bench_pipeline(a: &BenchPipelineArgs) -> Result<()> {
+    let req = Request {
+        events: a.events.clone(),
+        open: a.input.options(),
+        model: a.model.clone(),
+        engine: a.engine,
+        cameras: a.cameras.clone(),
+        smooth: Some(SmoothParams::DEFAULT),
+        capacity: DEFAULT_TIME_WINDOW_CAPACITY,
+        ..Request::default()
+    };
+    let threads = a
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let b = crate::bench::pipeline(&req, a.passes, threads)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&b)?);
+        return Ok(());
+    }
+    println!("cpu: {}", b.cpu);
+    println!(
+        "{}: {} events, {} windows x {} camera(s) per pass; model {} ({:?}, {} points)",
+        b.run.events, b.events, b.windows, b.cameras, b.run.model, b.run.engine, b.run.points
+    );
+    println!(
+        "1 thread:   {:.2} M events/s, {:.0} windows/s, {:.3} ms per window (median of {} passes; real time: 36 ms)",
+        b.events_per_second / 1e6,
+        b.windows_per_second,
+        b.ms_per_window,
+        b.passes
+    );
+    println!(
+        "{} threads: {:.2} M events/s, {:.0} windows/s (independent passes in parallel)",
+        b.threads,
+        b.parallel_events_per_second / 1e6,
+        b.parallel_windows_per_second
+    );
+    Ok(())
+}
