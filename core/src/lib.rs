@@ -66,8 +66,8 @@ pub use infer::{
 pub use model::{DType, Model, ModelError};
 pub use pipeline::{Estimate, Estimator, Session, Workspace};
 pub use raster::{
-    ConfigError, Davis346Storage, InlineStorage, Point, Pushed, RasterConfig, RasterStats,
-    RasterStorage, Rasterizer, Window, WindowRule,
+    ConfigError, Davis346Storage, InlineStorage, Point, Pushed, RasterBuffers, RasterConfig,
+    RasterStats, RasterStorage, Rasterizer, Window, WindowRule,
 };
 pub use sample::{rng_from_seed, sample_indices, sample_window, SampleRng};
 pub use simdr::{decode, Joint2d};

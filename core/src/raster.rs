@@ -195,17 +195,57 @@ pub struct RasterParts<'a> {
     pub hist_rows: &'a mut [u32],
 }
 
-/// Inline, compile-time-sized storage: `CAP` events, `MAX_W` columns, `MAX_ROWS` `(slice, row)`
-/// bins (`K × H`). Size: `16 × CAP + 4 × (MAX_W + MAX_ROWS)` bytes.
-pub struct InlineStorage<const CAP: usize, const MAX_W: usize, const MAX_ROWS: usize> {
-    a: [u64; CAP],
-    b: [u64; CAP],
-    hist_x: [u32; MAX_W],
-    hist_rows: [u32; MAX_ROWS],
+/// Rasterizer storage from four buffers: the event words `a` and `b` (one window's events
+/// each) and the histograms `hist_x` (one bin per sensor column) and `hist_rows` (one per
+/// `(slice, row)`). Arrays give fixed memory ([`InlineStorage`], a `static` on an MCU); a
+/// host uses vectors (`evpose_host::pipeline::VecStorage`). One [`RasterStorage`]
+/// implementation serves both.
+pub struct RasterBuffers<A, X, R> {
+    a: A,
+    b: A,
+    hist_x: X,
+    hist_rows: R,
 }
 
+impl<A, X, R> RasterBuffers<A, X, R> {
+    /// Storage over the given buffers (`a` and `b` of equal length: the window's capacity).
+    pub const fn from_parts(a: A, b: A, hist_x: X, hist_rows: R) -> Self {
+        Self {
+            a,
+            b,
+            hist_x,
+            hist_rows,
+        }
+    }
+}
+
+impl<A, X, R> RasterStorage for RasterBuffers<A, X, R>
+where
+    A: AsMut<[u64]> + AsRef<[u64]>,
+    X: AsMut<[u32]>,
+    R: AsMut<[u32]>,
+{
+    fn parts(&mut self) -> RasterParts<'_> {
+        RasterParts {
+            a: self.a.as_mut(),
+            b: self.b.as_mut(),
+            hist_x: self.hist_x.as_mut(),
+            hist_rows: self.hist_rows.as_mut(),
+        }
+    }
+
+    fn words(&self) -> (&[u64], &[u64]) {
+        (self.a.as_ref(), self.b.as_ref())
+    }
+}
+
+/// Inline, compile-time-sized storage: `CAP` events, `MAX_W` columns, `MAX_ROWS` `(slice, row)`
+/// bins (`K × H`). Size: `16 × CAP + 4 × (MAX_W + MAX_ROWS)` bytes.
+pub type InlineStorage<const CAP: usize, const MAX_W: usize, const MAX_ROWS: usize> =
+    RasterBuffers<[u64; CAP], [u32; MAX_W], [u32; MAX_ROWS]>;
+
 impl<const CAP: usize, const MAX_W: usize, const MAX_ROWS: usize>
-    InlineStorage<CAP, MAX_W, MAX_ROWS>
+    RasterBuffers<[u64; CAP], [u32; MAX_W], [u32; MAX_ROWS]>
 {
     /// Zeroed storage; `const` so that it can initialize a `static`.
     pub const fn new() -> Self {
@@ -224,37 +264,15 @@ impl<const CAP: usize, const MAX_W: usize, const MAX_ROWS: usize>
                 "MAX_ROWS (slices × height) must be in 1..=8192"
             );
         }
-        Self {
-            a: [0; CAP],
-            b: [0; CAP],
-            hist_x: [0; MAX_W],
-            hist_rows: [0; MAX_ROWS],
-        }
+        Self::from_parts([0; CAP], [0; CAP], [0; MAX_W], [0; MAX_ROWS])
     }
 }
 
 impl<const CAP: usize, const MAX_W: usize, const MAX_ROWS: usize> Default
-    for InlineStorage<CAP, MAX_W, MAX_ROWS>
+    for RasterBuffers<[u64; CAP], [u32; MAX_W], [u32; MAX_ROWS]>
 {
     fn default() -> Self {
         Self::new()
-    }
-}
-
-impl<const CAP: usize, const MAX_W: usize, const MAX_ROWS: usize> RasterStorage
-    for InlineStorage<CAP, MAX_W, MAX_ROWS>
-{
-    fn parts(&mut self) -> RasterParts<'_> {
-        RasterParts {
-            a: &mut self.a,
-            b: &mut self.b,
-            hist_x: &mut self.hist_x,
-            hist_rows: &mut self.hist_rows,
-        }
-    }
-
-    fn words(&self) -> (&[u64], &[u64]) {
-        (&self.a, &self.b)
     }
 }
 

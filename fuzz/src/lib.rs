@@ -4,7 +4,7 @@ use evpose_core::raster::{RasterConfig, WindowRule, MAX_HEIGHT, MAX_SLICES, MAX_
 use evpose_core::{DType, Event, Rasterizer};
 use evpose_host::io::{self, Batch, Format, OpenOptions};
 use evpose_host::model::{AlignedBlob, CoreRunner};
-use evpose_host::pipeline::VecStorage;
+use evpose_host::pipeline::vec_storage;
 
 /// Reads every batch of `data` as `format` (`None`: detected). Errors end the read; the
 /// batches must stay consistent (one camera per event).
@@ -79,7 +79,7 @@ pub fn raster(data: &[u8]) {
         },
     };
     let capacity = 1 + usize::from(u16_at(6) % 4096);
-    let storage = VecStorage::new(capacity, &config);
+    let storage = vec_storage(capacity, &config);
     let Ok(mut raster) = Rasterizer::new(config, storage) else {
         return;
     };

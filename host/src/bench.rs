@@ -10,7 +10,6 @@ use anyhow::Result;
 use evpose_core::{RasterConfig, Rasterizer, WindowRule};
 use serde::Serialize;
 
-use crate::pipeline::VecStorage;
 #[cfg(feature = "onnx")]
 use crate::{
     inputs,
@@ -44,7 +43,10 @@ pub fn raster(
         window: WindowRule::Events(window_events),
         ..RasterConfig::DAVIS346
     };
-    let mut r = Rasterizer::new(config, VecStorage::new(window_events as usize, &config))?;
+    let mut r = Rasterizer::new(
+        config,
+        crate::pipeline::vec_storage(window_events as usize, &config),
+    )?;
     let mut run_once = || {
         let (mut windows, mut points) = (0u64, 0u64);
         let mut rest = events;

@@ -7,46 +7,25 @@
 //! [`drive`] is the one loop over a reader's batches; a [`WindowSink`] is what it feeds.
 
 use anyhow::{bail, Context, Result};
-use evpose_core::raster::{RasterParts, MAX_HEIGHT, MAX_WIDTH};
+use evpose_core::raster::{RasterBuffers, MAX_HEIGHT, MAX_WIDTH};
 use evpose_core::{
     Event, RasterConfig, RasterStats, RasterStorage, Rasterizer, Window, WindowRule,
 };
 
 use crate::io::{self, Batch, EventReader, OpenOptions, StreamInfo};
 
-/// Heap-backed [`RasterStorage`] for windows of any size on the host.
-pub struct VecStorage {
-    a: Vec<u64>,
-    b: Vec<u64>,
-    hist_x: Vec<u32>,
-    hist_rows: Vec<u32>,
-}
+/// Heap-backed [`RasterStorage`] for windows of any size on the host: the core's
+/// [`RasterBuffers`] over vectors ([`vec_storage`] makes one).
+pub type VecStorage = RasterBuffers<Vec<u64>, Vec<u32>, Vec<u32>>;
 
-impl VecStorage {
-    /// Storage for windows of `capacity` events under `config`.
-    pub fn new(capacity: usize, config: &RasterConfig) -> Self {
-        Self {
-            a: vec![0; capacity],
-            b: vec![0; capacity],
-            hist_x: vec![0; usize::from(config.width)],
-            hist_rows: vec![0; config.row_bins()],
-        }
-    }
-}
-
-impl RasterStorage for VecStorage {
-    fn parts(&mut self) -> RasterParts<'_> {
-        RasterParts {
-            a: &mut self.a,
-            b: &mut self.b,
-            hist_x: &mut self.hist_x,
-            hist_rows: &mut self.hist_rows,
-        }
-    }
-
-    fn words(&self) -> (&[u64], &[u64]) {
-        (&self.a, &self.b)
-    }
+/// Heap storage for windows of `capacity` events under `config`.
+pub fn vec_storage(capacity: usize, config: &RasterConfig) -> VecStorage {
+    RasterBuffers::from_parts(
+        vec![0; capacity],
+        vec![0; capacity],
+        vec![0; usize::from(config.width)],
+        vec![0; config.row_bins()],
+    )
 }
 
 /// A rasterizer over heap storage for windows of `capacity` events of a `width × height`
@@ -62,7 +41,7 @@ pub fn rasterizer(
         slices,
         window: WindowRule::Events(capacity.max(1)),
     };
-    Rasterizer::new(config, VecStorage::new(capacity.max(1) as usize, &config))
+    Rasterizer::new(config, vec_storage(capacity.max(1) as usize, &config))
         .context("invalid rasterization settings")
 }
 

@@ -1142,7 +1142,7 @@ proptest! {
 #[test]
 fn all_camera_windows_give_every_camera_the_same_windows() {
     use evpose_core::{RasterConfig, Rasterizer, WindowRule};
-    use evpose_host::pipeline::{rasterize, RasterOptions, VecStorage};
+    use evpose_host::pipeline::{rasterize, vec_storage, RasterOptions};
     // A DHP19 recording: the first 1,000 events all from camera 0 (camera 1 has an empty first
     // window, camera 0 a full one), then 5,500 over the four cameras; windows of 1,000 events
     // of all cameras (the last one 500).
@@ -1182,7 +1182,7 @@ fn all_camera_windows_give_every_camera_the_same_windows() {
                     window: WindowRule::Events(n as u32),
                     ..RasterConfig::DAVIS346
                 };
-                let mut r = Rasterizer::new(config, VecStorage::new(n, &config)).unwrap();
+                let mut r = Rasterizer::new(config, vec_storage(n, &config)).unwrap();
                 let (used, closed) = r.extend(&mine);
                 assert_eq!(used, mine.len());
                 // A camera with all 1,000 events closes the window by count.
