@@ -10,9 +10,43 @@ use npyz::{NpyFile, Order, WriterBuilder};
 /// A stream of numbers from an `.npy` file, converted to f64 whatever the stored dtype.
 pub type Values = Box<dyn Iterator<Item = io::Result<f64>> + Send>;
 
+/// The longest `.npy` header read, bytes: NumPy's own limit when it loads a file
+/// (`max_header_size`, 10,000). A longer header is refused before anything is allocated for
+/// it: a damaged length field must not size an allocation (found by the `read_detect` fuzz
+/// target: a 4-byte field asked for 662 MB).
+pub const MAX_HEADER_BYTES: u32 = 10_000;
+
+/// Opens an `.npy` stream after checking its header length against [`MAX_HEADER_BYTES`].
+fn open_npy<R: Read>(mut reader: R) -> io::Result<NpyFile<io::Chain<io::Cursor<Vec<u8>>, R>>> {
+    // Magic (6), version (2), header length (2 bytes in version 1, 4 in versions 2 and 3).
+    let mut pre = vec![0u8; 12];
+    let mut got = 0;
+    while got < pre.len() {
+        match reader.read(&mut pre[got..])? {
+            0 => break,
+            n => got += n,
+        }
+    }
+    pre.truncate(got);
+    if got >= 10 && pre.starts_with(b"\x93NUMPY") {
+        let len = match pre[6] {
+            1 => u32::from(u16::from_le_bytes([pre[8], pre[9]])),
+            _ if got == 12 => u32::from_le_bytes([pre[8], pre[9], pre[10], pre[11]]),
+            _ => 0,
+        };
+        if len > MAX_HEADER_BYTES {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidData,
+                format!("npy header of {len} bytes (at most {MAX_HEADER_BYTES} are read)"),
+            ));
+        }
+    }
+    NpyFile::new(io::Cursor::new(pre).chain(reader))
+}
+
 /// Opens an `.npy` stream: returns its shape and an iterator over its values in C order.
 pub fn stream_f64<R: Read + Send + 'static>(reader: R) -> io::Result<(Vec<u64>, Values)> {
-    let npy = NpyFile::new(reader)?;
+    let npy = open_npy(reader)?;
     if npy.order() == Order::Fortran && npy.shape().len() > 1 {
         return Err(io::Error::new(
             io::ErrorKind::InvalidData,
@@ -57,7 +91,7 @@ pub fn read_f64(path: &Path) -> Result<(Vec<u64>, Vec<f64>)> {
 /// Reads a whole `.npy` file of a given element type (no conversion).
 pub fn read_exact<T: npyz::Deserialize>(path: &Path) -> Result<(Vec<u64>, Vec<T>)> {
     let file = File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
-    let npy = NpyFile::new(BufReader::new(file))
+    let npy = open_npy(BufReader::new(file))
         .with_context(|| format!("{}: not an npy file", path.display()))?;
     let shape = npy.shape().to_vec();
     let data = npy

@@ -1204,3 +1204,24 @@ fn all_camera_windows_give_every_camera_the_same_windows() {
         }
     }
 }
+
+/// Inputs the fuzz targets (`fuzz/`) found, kept as regression tests.
+#[test]
+fn inputs_found_by_the_fuzzer_are_errors() {
+    // An npy header whose length field (version 3: 4 bytes) asks for 662 MB: the reader
+    // allocated it before reading; now a header over NumPy's 10,000-byte limit is refused.
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/fuzz/npy-huge-header-length.npy");
+    let bytes = std::fs::read(&path).unwrap();
+    for format in [None, Some(Format::Npy)] {
+        let opts = OpenOptions {
+            format,
+            ..OpenOptions::default()
+        };
+        let (r, peak) =
+            peak_heap(|| evpose_host::io::open_bytes(bytes.clone(), "fuzz input", &opts));
+        let err = r.err().expect("an error");
+        assert!(format!("{err:#}").contains("npy header of"), "{err:#}");
+        assert!(peak < 1 << 20, "{peak} bytes allocated");
+    }
+}
