@@ -20,9 +20,9 @@ pub enum Switch {
     Off,
 }
 
-/// Arguments of `evpose run`.
+/// What `evpose run` and `evpose bench pipeline` run: recording, model, engine, cameras.
 #[derive(Args, Debug)]
-pub struct RunArgs {
+pub struct SourceArgs {
     /// Event recording, any supported format (default: the bundled synthetic four-camera clip
     /// with ground truth).
     #[arg(long)]
@@ -38,6 +38,33 @@ pub struct RunArgs {
     /// recordings, else the recording's camera). Two or more calibrated cameras give 3-D.
     #[arg(long, value_delimiter = ',')]
     pub cameras: Option<Vec<u8>>,
+    /// How to read the recording.
+    #[command(flatten)]
+    pub input: super::InputArgs,
+}
+
+impl SourceArgs {
+    /// A request for these, everything else default.
+    fn request(&self) -> Request {
+        Request {
+            events: self.events.clone(),
+            open: self.input.options(),
+            model: self.model.clone(),
+            engine: self.engine,
+            cameras: self.cameras.clone(),
+            smooth: Some(SmoothParams::DEFAULT),
+            capacity: DEFAULT_TIME_WINDOW_CAPACITY,
+            ..Request::default()
+        }
+    }
+}
+
+/// Arguments of `evpose run`.
+#[derive(Args, Debug)]
+pub struct RunArgs {
+    /// Recording, model, engine, cameras.
+    #[command(flatten)]
+    pub source: SourceArgs,
     /// Events per window, counted over all cameras of the recording (default: the model's
     /// window, 7,500, times the recording's cameras: 30,000 for DHP19's four).
     #[arg(long, conflicts_with = "window_ms")]
@@ -86,24 +113,16 @@ pub struct RunArgs {
     /// Print JSON: the windows as lines with --verbose, then the summary.
     #[arg(long)]
     pub json: bool,
-    /// How to read the recording.
-    #[command(flatten)]
-    pub input: super::InputArgs,
 }
 
 /// Runs `evpose run`.
 pub fn run(a: &RunArgs) -> Result<()> {
-    if a.events.is_none() && a.input != super::InputArgs::default() {
+    if a.source.events.is_none() && a.source.input != super::InputArgs::default() {
         bail!(
             "--format/--width/--height/--time-unit describe --events; the bundled clip needs none"
         );
     }
     let req = Request {
-        events: a.events.clone(),
-        open: a.input.options(),
-        model: a.model.clone(),
-        engine: a.engine,
-        cameras: a.cameras.clone(),
         window_events: a.window_events,
         window_ms: a.window_ms,
         stride: a.stride,
@@ -113,7 +132,9 @@ pub fn run(a: &RunArgs) -> Result<()> {
         gt: a.gt.clone(),
         calibration: a.calibration.clone(),
         capacity: a.max_window_events,
+        ..a.source.request()
     };
+
     let plan = Plan::resolve(&req)?;
     let d = plan.description.clone();
     if !a.json {
@@ -275,18 +296,9 @@ fn print_summary(s: &RunSummary, synthetic: bool) {
 /// Arguments of `evpose bench pipeline`.
 #[derive(Args, Debug)]
 pub struct BenchPipelineArgs {
-    /// Recording (default: the bundled clip).
-    #[arg(long)]
-    pub events: Option<PathBuf>,
-    /// Model (default: the bundled MCU model, int8).
-    #[arg(long)]
-    pub model: Option<PathBuf>,
-    /// Engine (default: by the model, as `evpose run`).
-    #[arg(long, value_enum)]
-    pub engine: Option<EngineKind>,
-    /// Cameras (default: as `evpose run`).
-    #[arg(long, value_delimiter = ',')]
-    pub cameras: Option<Vec<u8>>,
+    /// Recording (default: the bundled clip), model, engine, cameras, as `evpose run`.
+    #[command(flatten)]
+    pub source: SourceArgs,
     /// Timed passes on one thread (the median is reported); the parallel run makes this many
     /// per thread.
     #[arg(long, default_value_t = 5)]
@@ -297,23 +309,11 @@ pub struct BenchPipelineArgs {
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
-    /// How to read the recording.
-    #[command(flatten)]
-    pub input: super::InputArgs,
 }
 
 /// Runs `evpose bench pipeline`.
 pub fn bench_pipeline(a: &BenchPipelineArgs) -> Result<()> {
-    let req = Request {
-        events: a.events.clone(),
-        open: a.input.options(),
-        model: a.model.clone(),
-        engine: a.engine,
-        cameras: a.cameras.clone(),
-        smooth: Some(SmoothParams::DEFAULT),
-        capacity: DEFAULT_TIME_WINDOW_CAPACITY,
-        ..Request::default()
-    };
+    let req = a.source.request();
     let threads = a
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
