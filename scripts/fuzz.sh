@@ -2,7 +2,7 @@
 # Fuzzes every target of fuzz/ (cargo-fuzz, libFuzzer, AddressSanitizer) for RUNS executions
 # each (default 1,000,000), two at a time, with a 256 MiB RSS limit (a reader or the blob parser
 # that allocates from an unchecked length field fails it) and a 10 s per-input timeout, and
-# prints executions, crashes, out-of-memory and time-outs per target.
+# prints executions, crashes, out-of-memory, time-outs and peak RSS per target.
 #
 #   bash scripts/fuzz.sh [RUNS] [TARGET…]
 #
@@ -40,12 +40,14 @@ export runs
 # RSS: keep it small so that the RSS limit measures what the code under test holds.
 export ASAN_OPTIONS="${ASAN_OPTIONS:-quarantine_size_mb=16}"
 printf '%s\n' "${targets[@]}" | xargs -P 2 -I{} bash -c 'fuzz_one {}'
-printf '%-20s %12s %8s %5s %9s %8s\n' target executions crashes oom timeouts seconds
+printf '%-20s %12s %8s %5s %9s %13s %8s\n' target executions crashes oom timeouts peak_rss_mb seconds
 for t in "${targets[@]}"; do
   log="logs/$t.log"
   execs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$log" | grep -o '[0-9]*$' || echo 0)
   crash=$(grep -c 'ERROR: AddressSanitizer\|ERROR: libFuzzer: deadly signal\|panicked at' "$log" || true)
   oom=$(grep -c 'ERROR: libFuzzer: out-of-memory\|malloc(.*) exceeds limit' "$log" || true)
   tmo=$(grep -c 'ERROR: libFuzzer: timeout' "$log" || true)
-  printf '%-20s %12s %8s %5s %9s %8s\n' "$t" "${execs:-0}" "$crash" "$oom" "$tmo" "$(cat "logs/$t.secs")"
+  rss=$(grep -o 'stat::peak_rss_mb: *[0-9]*' "$log" | grep -o '[0-9]*$' || echo '?')
+  printf '%-20s %12s %8s %5s %9s %13s %8s\n' "$t" "${execs:-0}" "$crash" "$oom" "$tmo" "${rss:-?}" \
+    "$(cat "logs/$t.secs")"
 done

@@ -16,29 +16,73 @@ pub type Values = Box<dyn Iterator<Item = io::Result<f64>> + Send>;
 /// target: a 4-byte field asked for 662 MB).
 pub const MAX_HEADER_BYTES: u32 = 10_000;
 
-/// Opens an `.npy` stream after checking its header length against [`MAX_HEADER_BYTES`].
-fn open_npy<R: Read>(mut reader: R) -> io::Result<NpyFile<io::Chain<io::Cursor<Vec<u8>>, R>>> {
-    // Magic (6), version (2), header length (2 bytes in version 1, 4 in versions 2 and 3).
-    let mut pre = vec![0u8; 12];
-    let mut got = 0;
-    while got < pre.len() {
-        match reader.read(&mut pre[got..])? {
-            0 => break,
-            n => got += n,
+/// The deepest bracket nesting accepted in an `.npy` header (its Python dict literal): a plain
+/// array's header nests 2 levels, a structured dtype a few more. The literal parser backtracks
+/// exponentially in the depth (found by the `read_npy` fuzz target: 16 nested `{` took over
+/// 10 s), so deeper headers are refused before it runs.
+pub const MAX_HEADER_DEPTH: usize = 6;
+
+/// Bracket depth of a Python literal, outside quoted strings.
+fn nesting_depth(header: &[u8]) -> usize {
+    let (mut depth, mut max, mut quote) = (0usize, 0usize, None::<u8>);
+    for &c in header {
+        match (quote, c) {
+            (Some(q), _) if c == q => quote = None,
+            (Some(_), _) => {}
+            (None, b'\'' | b'"') => quote = Some(c),
+            (None, b'{' | b'[' | b'(') => {
+                depth += 1;
+                max = max.max(depth);
+            }
+            (None, b'}' | b']' | b')') => depth = depth.saturating_sub(1),
+            _ => {}
         }
     }
-    pre.truncate(got);
-    if got >= 10 && pre.starts_with(b"\x93NUMPY") {
-        let len = match pre[6] {
-            1 => u32::from(u16::from_le_bytes([pre[8], pre[9]])),
-            _ if got == 12 => u32::from_le_bytes([pre[8], pre[9], pre[10], pre[11]]),
-            _ => 0,
+    max
+}
+
+/// Opens an `.npy` stream after checking its header: at most [`MAX_HEADER_BYTES`] long and
+/// [`MAX_HEADER_DEPTH`] deep.
+fn open_npy<R: Read>(mut reader: R) -> io::Result<NpyFile<io::Chain<io::Cursor<Vec<u8>>, R>>> {
+    let invalid = |m: String| io::Error::new(io::ErrorKind::InvalidData, m);
+    let mut read_up_to = |buf: &mut Vec<u8>, n: usize| -> io::Result<()> {
+        let start = buf.len();
+        buf.resize(start + n, 0);
+        let mut got = 0;
+        while got < n {
+            match reader.read(&mut buf[start + got..])? {
+                0 => break,
+                k => got += k,
+            }
+        }
+        buf.truncate(start + got);
+        Ok(())
+    };
+    // Magic (6), version (2), header length (2 bytes in version 1, 4 in versions 2 and 3).
+    let mut pre = Vec::with_capacity(12);
+    read_up_to(&mut pre, 10)?;
+    if pre.len() == 10 && pre.starts_with(b"\x93NUMPY") {
+        let len = if pre[6] == 1 {
+            u32::from(u16::from_le_bytes([pre[8], pre[9]]))
+        } else {
+            read_up_to(&mut pre, 2)?;
+            match pre[..] {
+                [.., a, b, c, d] if pre.len() == 12 => u32::from_le_bytes([a, b, c, d]),
+                _ => 0,
+            }
         };
         if len > MAX_HEADER_BYTES {
-            return Err(io::Error::new(
-                io::ErrorKind::InvalidData,
-                format!("npy header of {len} bytes (at most {MAX_HEADER_BYTES} are read)"),
-            ));
+            return Err(invalid(format!(
+                "npy header of {len} bytes (at most {MAX_HEADER_BYTES} are read)"
+            )));
+        }
+        let at = pre.len();
+        read_up_to(&mut pre, len as usize)?;
+        let depth = nesting_depth(&pre[at..]);
+        if depth > MAX_HEADER_DEPTH {
+            return Err(invalid(format!(
+                "npy header nests {depth} levels (at most {MAX_HEADER_DEPTH})"
+            )));
         }
     }
     NpyFile::new(io::Cursor::new(pre).chain(reader))

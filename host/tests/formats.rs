@@ -1224,4 +1224,13 @@ fn inputs_found_by_the_fuzzer_are_errors() {
         assert!(format!("{err:#}").contains("npy header of"), "{err:#}");
         assert!(peak < 1 << 20, "{peak} bytes allocated");
     }
+    // A header nesting 17 levels (16 `{`): the Python-literal parser backtracked for over 10 s (the fuzz
+    // run's time-out); headers deeper than 6 levels are now refused before it runs.
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/fuzz/npy-deeply-nested-header.npy");
+    let opts = OpenOptions::default();
+    let err = evpose_host::io::open_bytes(std::fs::read(&path).unwrap(), "fuzz input", &opts)
+        .err()
+        .expect("an error");
+    assert!(format!("{err:#}").contains("nests 17 levels"), "{err:#}");
 }
