@@ -344,7 +344,7 @@ fn read_symbols<'a>(elf: &Elf<'a>, raw: &[RawSection]) -> Result<Vec<RawSymbol<'
 }
 
 /// Functions of the panic machinery, by demangled name: what a reachable panic calls.
-const PANIC_MACHINERY: [&str; 9] = [
+pub const PANIC_MACHINERY: [&str; 9] = [
     "core::panicking::",
     "core::slice::index::",
     "core::slice::copy_from_slice_impl::len_mismatch_fail",
