@@ -9,7 +9,9 @@ use tract_onnx::tract_hir::infer::Factoid;
 
 use super::Logits;
 
-/// An ONNX model prepared for tract, the independent reference engine.
+/// An ONNX model prepared for tract, the independent reference engine. Clones share the
+/// optimized plan.
+#[derive(Clone)]
 pub struct TractModel {
     plan: Option<std::sync::Arc<TypedSimplePlan>>,
     path: std::path::PathBuf,

@@ -181,6 +181,7 @@ pub struct TractCamera {
     rng: evpose_core::SampleRng,
     model: crate::model::TractModel,
     points: usize,
+    capacity: usize,
     indices: Vec<u32>,
     rows: Vec<[f32; 5]>,
 }
@@ -214,6 +215,7 @@ impl TractCamera {
                 rng: evpose_core::rng_from_seed(seed),
                 model,
                 points,
+                capacity,
                 indices: vec![0; points.max(capacity)],
                 rows: vec![[0.0; 5]; points.max(capacity).max(1)],
             },
@@ -224,6 +226,22 @@ impl TractCamera {
     /// Points per network input.
     pub fn points(&self) -> usize {
         self.points
+    }
+
+    /// Another camera's estimator over the same loaded model (no second load or tract
+    /// optimization), its sampler seeded with `seed`.
+    pub fn with_seed(&self, seed: u64) -> Result<Self> {
+        let c = *self.raster.config();
+        let capacity = self.capacity as u32;
+        Ok(Self {
+            raster: pipeline::rasterizer((c.width, c.height), c.slices, capacity)?,
+            rng: evpose_core::rng_from_seed(seed),
+            model: self.model.clone(),
+            points: self.points,
+            capacity: self.capacity,
+            indices: vec![0; self.indices.len()],
+            rows: vec![[0.0; 5]; self.rows.len()],
+        })
     }
 }
 

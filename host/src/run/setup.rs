@@ -156,18 +156,15 @@ impl Plan {
                         bail!("--engine tract runs an .onnx model (--model M.onnx)");
                     };
                     let capacity = capacity_for(req, window_per_camera * recording_cameras);
+                    // One load (and tract optimization) for every camera: they share the plan.
+                    let first = camera::TractCamera::load(path, req.points, capacity, req.seed)?;
+                    let (size, points) = (first.1, first.0.points());
                     let mut estimators: Vec<Box<dyn CameraEstimator>> = Vec::new();
-                    let (mut size, mut points) = ((0, 0), 0);
-                    for i in 0..ids.len() {
-                        let (cam, s) = camera::TractCamera::load(
-                            path,
-                            req.points,
-                            capacity,
-                            req.seed.wrapping_add(i as u64),
-                        )?;
-                        (size, points) = (s, cam.points());
-                        estimators.push(Box::new(cam));
+                    for i in 1..ids.len() {
+                        let seed = req.seed.wrapping_add(i as u64);
+                        estimators.push(Box::new(first.0.with_seed(seed)?));
                     }
+                    estimators.insert(0, Box::new(first.0));
                     (Loaded::Owned(estimators), points, size, engine)
                 }
                 #[cfg(not(feature = "onnx"))]
@@ -315,10 +312,7 @@ impl Plan {
         mut self,
         on_window: impl FnMut(&RunWindow, &WindowEvents<'_>, Option<&WindowTruth>) -> Result<()>,
     ) -> Result<RunSummary> {
-        let capacity = match self.options.rule {
-            WindowRule::Events { size, .. } => size as usize,
-            WindowRule::Time { .. } => self.options.capacity,
-        };
+        let capacity = self.options.capacity;
         let truth = self.truth.as_ref();
         match &mut self.loaded {
             Loaded::Core(blob) => {
