@@ -274,17 +274,15 @@ fn error3d(joints: &[Option<[f64; 3]>], label: &[[f32; 3]; JOINTS]) -> (f64, u64
         .fold((0.0, 0), |(s, n), e| (s + e, n + 1))
 }
 
-/// Mean 2-D distance of the joints to the visible labels.
+/// Mean 2-D distance of the joints to the visible labels ([`crate::eval::joint_errors_2d`], the
+/// evaluation's definition); nothing for a model with another joint count.
 fn error2d(joints: &[[f32; 2]], (label, mask): &([[f32; 2]; JOINTS], [u8; JOINTS])) -> (f64, u64) {
-    joints
+    let Ok(pred) = <&[[f32; 2]; JOINTS]>::try_from(joints) else {
+        return (0.0, 0);
+    };
+    crate::eval::joint_errors_2d(pred, label, mask)
         .iter()
-        .zip(label)
-        .zip(mask)
-        .filter(|(_, &m)| m != 0)
-        .map(|((p, l), _)| {
-            let (dx, dy) = (f64::from(p[0] - l[0]), f64::from(p[1] - l[1]));
-            (dx * dx + dy * dy).sqrt()
-        })
+        .flatten()
         .fold((0.0, 0), |(s, n), e| (s + e, n + 1))
 }
 
