@@ -258,10 +258,10 @@ pub fn pipeline(
         let s = plan.run(|_, _, _| Ok(()))?;
         Ok((start.elapsed().as_secs_f64(), s.events, s.windows))
     };
-    let first = Plan::resolve(req)?;
-    let (run, cameras) = (first.description.clone(), first.options.cameras.len());
-    drop(first);
-    once()?; // warm-up: page cache, allocations
+    // The warm-up pass (page cache, allocations) also says what runs.
+    let warm = Plan::resolve(req)?;
+    let (run, cameras) = (warm.description.clone(), warm.options.cameras.len());
+    warm.run(|_, _, _| Ok(()))?;
     let mut times = Vec::with_capacity(passes.max(1) as usize);
     let (mut events, mut windows) = (0, 0);
     for _ in 0..passes.max(1) {
