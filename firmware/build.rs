@@ -2,7 +2,7 @@
 //!    for a map file next to the ELF (`target/thumbv7em-none-eabihf/<profile>/evpose-firmware.map`).
 //! 2. Sizes the inference buffers from the embedded model at compile time: parses
 //!    `models/mcu.evq` with the same `evpose_core::Model::parse` the firmware runs and writes
-//!    `model_dims.rs` (joints, SimDR width and height, `scratch_words`, and the point count the
+//!    `model_dims.rs` (joints, SimDR width and height, `scratch_words_for_block`, and the point count the
 //!    blob records, 2,048 when it records none) into `OUT_DIR`.
 
 use std::path::{Path, PathBuf};
@@ -46,7 +46,8 @@ fn model_dims(path: &Path) -> String {
          const WIDTH: usize = {};\n\
          /// SimDR y-axis length (sensor height) of the embedded model.\n\
          const HEIGHT: usize = {};\n\
-         /// int8 engine scratch of the embedded model, in 32-bit words (`scratch_words`).\n\
+         /// int8 engine scratch of the embedded model for blocks of the DSP kernel's points\n\
+         /// (`scratch_words_for_block`, `kernels::arm::BLOCK_POINTS`), in 32-bit words.\n\
          const SCRATCH_WORDS: usize = {};\n\
          /// Network input points per window: the `N` the blob records (`evpose quantize`\n\
          /// samples the same), 2,048 (the paper's) when it records none.\n\
@@ -55,7 +56,7 @@ fn model_dims(path: &Path) -> String {
         model.joints(),
         model.width(),
         model.height(),
-        evpose_core::scratch_words(&model),
+        evpose_core::scratch_words_for_block(&model, evpose_core::kernels::arm::BLOCK_POINTS),
         model.input_points()
     )
 }

@@ -536,7 +536,7 @@ fn firmware_matches_the_host_core_under_qemu() {
         .unwrap_or_else(|| panic!("no selftest line:\n{text}"));
     assert_eq!(field::<String>(selftest, "kernels"), "armdsp", "{selftest}");
     assert!(
-        field::<u32>(selftest, "cases") >= 71 * 9 + 256,
+        field::<u32>(selftest, "cases") >= 71 * 9 + 256 + 8 * 9 * 3 + 11,
         "{selftest}"
     );
     assert_eq!(field::<u32>(selftest, "mismatches"), 0, "{selftest}");

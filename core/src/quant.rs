@@ -56,6 +56,7 @@ pub fn round_to_i32(v: f32) -> i32 {
 
 /// Requantizes one int32 accumulator (bias included) to int8 with an optional LeakyReLU.
 #[inline(always)]
+#[expect(clippy::manual_clamp, reason = "max/min on purpose: see the last line")]
 pub fn requantize(acc: i32, scale: f32, leaky: Option<f32>) -> i8 {
     let mut v = acc as f32 * scale;
     if let Some(alpha) = leaky {
@@ -63,8 +64,12 @@ pub fn requantize(acc: i32, scale: f32, leaky: Option<f32>) -> i8 {
             v *= alpha;
         }
     }
-    // Same value as `round_clamp(v, -128.0, 127.0)`: clamp into the exact range, round, saturate.
-    round_to_i32(v.clamp(-129.0, 128.0)).clamp(-128, 127) as i8
+    // Same value as `round_clamp(v, -128.0, 127.0)`: clamp into the exact range, round,
+    // saturate. `max`/`min` rather than `clamp`: the same for every number, one instruction
+    // each where the FPU has them (VMAXNM/VMINNM on a Cortex-M7: the clamp's compares and
+    // selects cost 4 more instructions per output under QEMU), and a NaN (a blob's infinite
+    // scale times 0) saturates to -128 on every CPU instead of passing its bits on.
+    round_to_i32(v.max(-129.0).min(128.0)).clamp(-128, 127) as i8
 }
 
 /// One layer's requantization: per-output-channel multipliers and the optional LeakyReLU slope,

@@ -1046,6 +1046,9 @@ proptest! {
             kern.pool_i8(&mut m, &mut s, &y);
             prop_assert_eq!((&m, &s), (&wm, &ws), "{}", kern.name());
         }
+        let (mut m, mut s) = (max.clone(), sum.clone());
+        kernels::arm::pool_i8(&mut m, &mut s, &y);
+        prop_assert_eq!((&m, &s), (&wm, &ws), "arm::pool_i8 (emulated)");
     }
 }
 

@@ -29,13 +29,13 @@ use cortex_m_rt::{entry, exception, ExceptionFrame};
 use defmt::println;
 use defmt_semihosting as _;
 
-use evpose_core::kernels::Kernels;
+use evpose_core::kernels::{self, Kernels};
 use evpose_core::model::{DType, ModelError, FEATURES};
 use evpose_core::pipeline::{Estimate, PipelineError, Profiler, Step, I8};
 use evpose_core::raster::ConfigError;
 use evpose_core::smooth::{AxisState, SmoothParams, Smoother, StateTooSmall};
 use evpose_core::{
-    scratch_words, Davis346Storage, Estimator, Event, InferError, Joint2d, Model, Plan,
+    scratch_words_for_block, Davis346Storage, Estimator, Event, InferError, Joint2d, Model, Plan,
     RasterConfig, Rasterizer, Session, Workspace,
 };
 use static_cell::ConstStaticCell;
@@ -47,7 +47,7 @@ const SEED: u64 = 0;
 /// Events read from the source per batch (one DMA half-buffer on a board).
 const BATCH: usize = 256;
 // JOINTS, WIDTH, HEIGHT, SCRATCH_WORDS and POINTS of the embedded model, computed by build.rs
-// with `evpose_core::Model::parse` and `scratch_words` (and checked again at boot).
+// with `evpose_core::Model::parse` and `scratch_words_for_block` (and checked again at boot).
 include!(concat!(env!("OUT_DIR"), "/model_dims.rs"));
 
 /// A model blob at a 16-byte-aligned address (`Model::parse` reads its arrays in place).
@@ -224,7 +224,7 @@ fn run(per_tick: u64) -> Result<(), Error> {
     let t = clock::ticks();
     let model = Model::parse(&MODEL.0)?;
     let parse = clock.since(t);
-    let scratch_needed = scratch_words(&model);
+    let scratch_needed = scratch_words_for_block(&model, kernels::arm::BLOCK_POINTS);
     if model.dtype() != DType::I8
         || (model.joints(), model.width(), model.height()) != (JOINTS, WIDTH, HEIGHT)
         || scratch_needed > SCRATCH_WORDS

@@ -3,15 +3,23 @@
 //! instructions. The host tests the same kernel code on emulated instructions; this is where
 //! the instructions themselves are checked. `tests/firmware_qemu.rs` asserts the report.
 
-use evpose_core::kernels::{reference, Kernels};
+use evpose_core::kernels::{self, reference, Kernels};
 
 /// Widest `K` and most rows of the random cases.
 const MAX_K: usize = 70;
 const MAX_ROWS: usize = 9;
 
+/// Most points of the matmat cases: two blocks of `BLOCK_POINTS` and a remainder.
+const MAX_POINTS: usize = 2 * kernels::arm::BLOCK_POINTS + 1;
+/// `K` of the matmat cases: below, at and across the blocked kernel's
+/// 128-input chunk, with tails.
+const MM_K: [usize; 8] = [1, 4, 7, 16, 127, 128, 131, 260];
+/// The widest of them.
+const MM_MAX_K: usize = 260;
+
 /// What the self-test found.
 pub struct Report {
-    /// matvec calls compared.
+    /// matvec, matmat and pooling calls compared.
     pub cases: u32,
     /// Calls whose outputs differ from the reference's in any element.
     pub mismatches: u32,
@@ -85,6 +93,47 @@ pub fn kernels(k: &Kernels) -> Report {
     let bias = [0i32; 256];
     for v in i8::MIN..=i8::MAX {
         check(&w, &[v; 5], &bias, 256);
+    }
+    // The blocked matmat (four points per weight load): every point count up to two blocks and
+    // a remainder, `K` across chunk boundaries, rows 1..=3, output rows 3 apart (gaps stay
+    // untouched), against the reference matvec point by point.
+    for &kk in &MM_K {
+        for points in 1..=MAX_POINTS {
+            for rows in 1..=3 {
+                let stride = rows + 3;
+                let mut w = [0i8; MM_MAX_K * 3];
+                let mut x = [0i8; MM_MAX_K * MAX_POINTS];
+                let mut bias = [0i32; 3];
+                w.iter_mut().for_each(|v| *v = value(&mut rng));
+                x.iter_mut().for_each(|v| *v = value(&mut rng));
+                bias.iter_mut().for_each(|v| *v = rng.next() as i32);
+                let (mut got, mut want) = ([0x5A5A_5A5Ai32; 6 * MAX_POINTS], [0x5A5A_5A5Ai32; 6 * MAX_POINTS]);
+                let (w, x, bias) = (&w[..rows * kk], &x[..points * kk], &bias[..rows]);
+                k.matmat_i8(w, kk, x, bias, &mut got, stride);
+                for (p, xp) in x.chunks_exact(kk).enumerate() {
+                    reference::matvec_i8(w, xp, bias, &mut want[p * stride..][..rows]);
+                }
+                report.cases += 1;
+                if got != want {
+                    report.mismatches += 1;
+                }
+            }
+        }
+    }
+    // Max and sum pooling (four channels per SSUB8/SEL step): every length up to 9 and 128,
+    // extremes mixed in, sums near the i32 limits.
+    for len in (0..=9).chain([128]) {
+        let (mut max, mut sum, mut y) = ([0i8; 128], [0i32; 128], [0i8; 128]);
+        max.iter_mut().for_each(|v| *v = value(&mut rng));
+        y.iter_mut().for_each(|v| *v = value(&mut rng));
+        sum.iter_mut().for_each(|v| *v = i32::MAX - (rng.next() % 256) as i32);
+        let (mut m, mut s) = (max, sum);
+        k.pool_i8(&mut m[..len], &mut s[..len], &y[..len]);
+        reference::pool_i8(&mut max[..len], &mut sum[..len], &y[..len]);
+        report.cases += 1;
+        if (m, s) != (max, sum) {
+            report.mismatches += 1;
+        }
     }
     report
 }

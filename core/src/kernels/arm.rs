@@ -18,6 +18,8 @@
 //! modulo 2^32 like the reference's; the products of sign-extended bytes are at most 2^14.
 #![allow(unsafe_code)]
 
+use core::mem::MaybeUninit;
+
 use super::rows;
 
 /// Both halfwords of the word, sign-extended from bytes 0 and 2 of `x` (`SXTB16 r, x`).
@@ -147,10 +149,271 @@ pub fn matvec_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
     }
 }
 
-/// [`super::reference::matmat_i8`] with [`matvec_i8`] per point (an MCU runs one point per
-/// pass; there is no register room for more).
+/// Points the blocked [`matmat_i8`] computes per pass over a row of weights; an engine that
+/// lends scratch for blocks of this many points ([`crate::scratch_words_for_block`]) gets it.
+pub const BLOCK_POINTS: usize = 4;
+
+/// Inputs of the block's unpacked `x` kept on the stack at a time (a multiple of four):
+/// `2 × BLOCK_POINTS` words per four inputs, 1 KiB. A longer `K` runs in chunks, the
+/// partial sums kept in `out` between them.
+const CHUNK: usize = 128;
+
+/// [`super::reference::matmat_i8`], bit-exact: four points at a time share each weight load
+/// and each unpacking of it (CMSIS-NN's `arm_nn_mat_mult_kernel_s8_s16` does the same with two
+/// columns); the rest of the points, fewer than four, go through [`matvec_i8`].
+///
+/// The block's inputs are unpacked once per chunk into the `SXTB16` halfword pairs (as
+/// CMSIS-NN converts its columns to q15 first), so the inner step for four inputs of one row
+/// and four points is one weight load, two `SXTB16`, four pairs of unpacked-input loads and
+/// eight `SMLAD`: 16 MACs, one accumulator per point, in registers.
 pub fn matmat_i8(w: &[i8], k: usize, x: &[i8], bias: &[i32], out: &mut [i32], out_stride: usize) {
-    super::reference::matmat_by_rows(matvec_i8, w, k, x, bias, out, out_stride);
+    let (points, rows) = super::matmat_dims(k, w.len(), x.len(), bias.len(), out.len(), out_stride);
+    if k == 0 || rows == 0 {
+        super::reference::matmat_by_rows(matvec_i8, w, k, x, bias, out, out_stride);
+        return;
+    }
+    let (w, bias) = (
+        w.get(..rows * k).unwrap_or_default(),
+        bias.get(..rows).unwrap_or_default(),
+    );
+    let blocks = points / BLOCK_POINTS;
+    // Both products are below the slice lengths when a block exists (`matmat_dims`), and
+    // non-zero (`k ≥ 1`; `rows ≥ 1` implies `out_stride ≥ 1`).
+    let (Some(xk), Some(os)) = (
+        k.checked_mul(BLOCK_POINTS).filter(|&v| v > 0),
+        out_stride.checked_mul(BLOCK_POINTS).filter(|&v| v > 0),
+    ) else {
+        return;
+    };
+    for (xb, ob) in x.chunks_exact(xk).zip(out.chunks_mut(os)).take(blocks) {
+        let mut k0 = 0;
+        while k0 < k {
+            let kc = CHUNK.min(k - k0);
+            block_chunk(w, k, k0, kc, xb, bias, ob, out_stride);
+            k0 += kc;
+        }
+    }
+    let done = blocks * BLOCK_POINTS;
+    if let (Some(x), Some(out)) = (
+        x.get(done * k..points * k),
+        out.get_mut(done * out_stride..),
+    ) {
+        super::reference::matmat_by_rows(matvec_i8, w, k, x, bias, out, out_stride);
+    }
+}
+
+/// Inputs `k0..k0 + kc` of every row for one block of [`BLOCK_POINTS`] points (`xb`, rows of
+/// `k`): starts from the bias on the first chunk and from the partial sums in `out` after it.
+/// Slices are cut with `get`, never indexed, so that the firmware links no panic path here.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn block_chunk(
+    w: &[i8],
+    k: usize,
+    k0: usize,
+    kc: usize,
+    xb: &[i8],
+    bias: &[i32],
+    out: &mut [i32],
+    stride: usize,
+) {
+    let full = k0 + kc / 4 * 4;
+    let point = |p: usize, r: core::ops::Range<usize>| {
+        xb.get(p * k + r.start..p * k + r.end).unwrap_or_default()
+    };
+    let steps = |p: usize| point(p, k0..full).as_chunks::<4>().0;
+    // The block's inputs unpacked, per step of four and per point: bytes (0, 2) and (1, 3) as
+    // halfwords. Only the entries written are read, so the buffer is not zeroed first (zeroing
+    // it cost more instructions under QEMU than the unpacking).
+    let mut buf = [MaybeUninit::<[u32; 2 * BLOCK_POINTS]>::uninit(); CHUNK / 4];
+    let mut n = 0;
+    for ((((slot, a), b), c), d) in buf
+        .iter_mut()
+        .zip(steps(0))
+        .zip(steps(1))
+        .zip(steps(2))
+        .zip(steps(3))
+    {
+        let [a, b, c, d] = [a, b, c, d].map(word);
+        slot.write([
+            sxtb16(a),
+            sxtb16_ror8(a),
+            sxtb16(b),
+            sxtb16_ror8(b),
+            sxtb16(c),
+            sxtb16_ror8(c),
+            sxtb16(d),
+            sxtb16_ror8(d),
+        ]);
+        n += 1;
+    }
+    // SAFETY: the loop above wrote `buf[..n]` (`n ≤ buf.len()`); `MaybeUninit<T>` has `T`'s
+    // layout, so those entries read as `[u32; 8]`.
+    let xu: &[[u32; 2 * BLOCK_POINTS]] =
+        unsafe { core::slice::from_raw_parts(buf.as_ptr().cast(), n) };
+    let mut ys = out.chunks_mut(stride);
+    let (Some(y0), Some(y1), Some(y2), Some(y3)) = (ys.next(), ys.next(), ys.next(), ys.next())
+    else {
+        return; // ruled out by `matmat_dims`
+    };
+    // The four points' outputs of one row at a time.
+    macro_rules! ys {
+        () => {
+            (y0.iter_mut().zip(y1.iter_mut())).zip(y2.iter_mut().zip(y3.iter_mut()))
+        };
+    }
+    let rows = w.chunks_exact(k).zip(bias);
+    // Two copies of the row loop, so that neither tests the chunk per row.
+    if k0 == 0 {
+        for ((row, &b), ((y0, y1), (y2, y3))) in rows.zip(ys!()) {
+            let mut acc = [b; BLOCK_POINTS];
+            block_steps(&mut acc, row.get(k0..full).unwrap_or_default(), xu);
+            [*y0, *y1, *y2, *y3] = acc;
+        }
+    } else {
+        for ((row, _), ((y0, y1), (y2, y3))) in rows.zip(ys!()) {
+            let mut acc = [*y0, *y1, *y2, *y3];
+            block_steps(&mut acc, row.get(k0..full).unwrap_or_default(), xu);
+            [*y0, *y1, *y2, *y3] = acc;
+        }
+    }
+    // The last one to three inputs when `K` is not a multiple of four, row by row.
+    if full < k0 + kc {
+        let tails = [0, 1, 2, 3].map(|p| point(p, full..k0 + kc));
+        for (row, ((y0, y1), (y2, y3))) in w.chunks_exact(k).zip(ys!()) {
+            let wt = row.get(full..k0 + kc).unwrap_or_default();
+            for (y, t) in [y0, y1, y2, y3].into_iter().zip(tails) {
+                *y = tail(*y, wt, t);
+            }
+        }
+    }
+}
+
+/// `acc[p] += Σ w·x` over the steps of four inputs that `ws` (one row) and `xu` (the block's
+/// unpacked inputs) share: per step one weight word, unpacked once, and two `SMLAD` per point.
+#[inline(always)]
+fn block_steps(acc: &mut [i32; BLOCK_POINTS], row: &[i8], xu: &[[u32; 2 * BLOCK_POINTS]]) {
+    let ws = row.as_chunks::<4>().0;
+    #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
+    {
+        let n = ws.len().min(xu.len());
+        if n == 0 {
+            return;
+        }
+        let [mut a0, mut a1, mut a2, mut a3] = *acc;
+        // One step of four inputs: a weight word unpacked, then per point its two unpacked
+        // input words and two SMLAD.
+        macro_rules! step {
+            () => {
+                concat!(
+                    "ldr {t}, [{pw}], #4\n",
+                    "sxtb16 {u}, {t}\n",
+                    "sxtb16 {t}, {t}, ror #8\n",
+                    "ldrd {xa}, {xb}, [{px}], #8\n",
+                    "smlad {a0}, {u}, {xa}, {a0}\n",
+                    "smlad {a0}, {t}, {xb}, {a0}\n",
+                    "ldrd {xa}, {xb}, [{px}], #8\n",
+                    "smlad {a1}, {u}, {xa}, {a1}\n",
+                    "smlad {a1}, {t}, {xb}, {a1}\n",
+                    "ldrd {xa}, {xb}, [{px}], #8\n",
+                    "smlad {a2}, {u}, {xa}, {a2}\n",
+                    "smlad {a2}, {t}, {xb}, {a2}\n",
+                    "ldrd {xa}, {xb}, [{px}], #8\n",
+                    "smlad {a3}, {u}, {xa}, {a3}\n",
+                    "smlad {a3}, {t}, {xb}, {a3}",
+                )
+            };
+        }
+        // 16 instructions per 16 MACs and the loop branch per 32: LLVM's own schedule of the
+        // same steps (the Rust twin below) spent 26 per 16, with register moves and one load
+        // per unpacked word.
+        // SAFETY: the loop reads `n` words from `ws` (`n ≤ ws.len()`, 4 bytes each, `LDR`
+        // takes unaligned addresses on Armv7E-M) and `n` entries of 32 bytes from `xu`
+        // (`n ≤ xu.len()`, `LDRD` needs 4-byte alignment, which `u32` gives), and stops when
+        // the weight pointer reaches `end`; it writes only registers. SXTB16 and SMLAD exist on
+        // cores with the DSP extension, which the `arm-dsp` feature promises (see `sxtb16`).
+        unsafe {
+            core::arch::asm!(
+                // Two steps per pass (the loop branch once per 32 MACs); an odd count
+                // (`end − pw = 4n`) enters at the second.
+                "sub {t}, {end}, {pw}",
+                "tst {t}, #4",
+                "bne 3f",
+                "2:",
+                step!(),
+                "3:",
+                step!(),
+                "cmp {pw}, {end}",
+                "bne 2b",
+                pw = inout(reg) ws.as_ptr() => _,
+                px = inout(reg) xu.as_ptr() => _,
+                end = in(reg) ws.as_ptr().wrapping_add(n),
+                t = out(reg) _,
+                u = out(reg) _,
+                xa = out(reg) _,
+                xb = out(reg) _,
+                a0 = inout(reg) a0,
+                a1 = inout(reg) a1,
+                a2 = inout(reg) a2,
+                a3 = inout(reg) a3,
+                options(nostack, readonly),
+            );
+        }
+        *acc = [a0, a1, a2, a3];
+    }
+    #[cfg(not(all(target_arch = "arm", feature = "arm-dsp")))]
+    for (u, wv) in xu.iter().zip(ws) {
+        let wd = word(wv);
+        let (w02, w13) = (sxtb16(wd), sxtb16_ror8(wd));
+        for (p, a) in acc.iter_mut().enumerate() {
+            *a = smlad(w13, u[2 * p + 1], smlad(w02, u[2 * p], *a));
+        }
+    }
+}
+
+/// Bytewise signed maximum of two words (`SSUB8` sets a GE flag per byte where `a ≥ b`, `SEL`
+/// then picks that byte of `a`, else of `b`).
+#[inline(always)]
+fn max8(a: u32, b: u32) -> u32 {
+    #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
+    {
+        let r: u32;
+        // SAFETY: SSUB8 and SEL read and write only the named registers (the scratch output
+        // `_t` included) and the APSR.GE flags, touch no memory; both exist with the DSP
+        // extension (see `sxtb16`).
+        unsafe {
+            core::arch::asm!("ssub8 {t}, {a}, {b}", "sel {r}, {a}, {b}", t = out(reg) _,
+                r = lateout(reg) r, a = in(reg) a, b = in(reg) b, options(pure, nomem, nostack));
+        }
+        r
+    }
+    #[cfg(not(all(target_arch = "arm", feature = "arm-dsp")))]
+    {
+        u32::from_le_bytes(core::array::from_fn(|i| {
+            let (x, y) = ((a >> (8 * i)) as u8 as i8, (b >> (8 * i)) as u8 as i8);
+            x.max(y) as u8
+        }))
+    }
+}
+
+/// [`super::reference::pool_i8`], bit-exact, four channels per step: the maxima with `SSUB8`
+/// and `SEL` on whole words, the sums from the sign-extended bytes.
+pub fn pool_i8(max: &mut [i8], sum: &mut [i32], y: &[i8]) {
+    let n = max.len().min(sum.len()).min(y.len());
+    let (Some(max), Some(sum), Some(y)) = (max.get_mut(..n), sum.get_mut(..n), y.get(..n)) else {
+        return; // `n` is the shortest length
+    };
+    let (m4, m_rest) = max.as_chunks_mut::<4>();
+    let (s4, s_rest) = sum.as_chunks_mut::<4>();
+    let (y4, y_rest) = y.as_chunks::<4>();
+    for ((m, s), v) in m4.iter_mut().zip(s4).zip(y4) {
+        let vw = word(v);
+        *m = max8(vw, word(m)).to_le_bytes().map(|b| b as i8);
+        for (s, &v) in s.iter_mut().zip(v) {
+            *s = s.wrapping_add(i32::from(v));
+        }
+    }
+    super::reference::pool_i8(m_rest, s_rest, y_rest);
 }
 
 /// The DSP kernel table (see [`super::Kernels`]); only built where the instructions are real.
@@ -160,5 +423,6 @@ pub(super) const fn kernels() -> super::Kernels {
     k.isa = super::Isa::ArmDsp;
     k.i8 = matvec_i8;
     k.i8mm = matmat_i8;
+    k.pool = pool_i8;
     k
 }
