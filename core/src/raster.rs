@@ -55,20 +55,21 @@ pub const DEFAULT_WINDOW_EVENTS: u32 = 7_500;
 /// The normalization factor of the reference code: keeps the last event inside slice `K - 1`.
 const SPAN_FACTOR: f64 = 1.001;
 
-// Layout of a buffered event word (before close):  x:11 | y:10 | p:1 | (spare) | t_off:32 (i32)
-// Layout after the slice pass:                     x:11 | y:10 | p:1 | k:3 | f32 bits:32
-// Layout of a point, word A:                       x:11 | y:10 | k:3 | cnt:32 (from bit 32)
-// Layout of a point, word B:                       f_acc f32 bits:32 | p_acc i32:32
+// Layout of a buffered event word (before close):   x:11 | y:10 | p:1 | (spare) | t_off:32 (i32)
+// Layout of a sorted word (after the slice pass):   x:11 | row bin k·H + y:13 | p:1 | f32 bits:32
+// Layout of a point, word A:                        x:11 | y:10 | k:3 | cnt:32 (from bit 32)
+// Layout of a point, word B:                        f_acc f32 bits:32 | p_acc i32:32
 const X_BITS: u32 = 11;
 const Y_SHIFT: u32 = 11;
 const P_SHIFT: u32 = 21;
-const K_SHIFT: u32 = 22;
 const X_MASK: u64 = (1 << X_BITS) - 1;
 const Y_MASK: u64 = (1 << 10) - 1;
 const K_MASK: u64 = (1 << 3) - 1;
+const RB_SHIFT: u32 = 11;
+/// Row bins `k·H + y` stay below `MAX_SLICES · MAX_HEIGHT = 8,192`.
+const RB_MASK: u64 = (1 << 13) - 1;
+const SORTED_P_SHIFT: u32 = 24;
 const POINT_K_SHIFT: u32 = 21;
-/// x, y and polarity bits of an event word.
-const XYP_MASK: u64 = (1 << K_SHIFT) - 1;
 
 /// When a window closes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -334,8 +335,10 @@ pub struct Rasterizer<S> {
     len: usize,
     t_first: i64,
     t_last: i64,
-    off_min: i32,
-    off_max: i32,
+    /// Whether an event of the open window came earlier than the one before it; if none did,
+    /// the window's time offsets run from 0 (its first event) to its last event's, and the
+    /// close needs no pass to find them.
+    disordered: bool,
     /// An event that closed the previous window and opens the next one.
     pending: Option<Event>,
     stats: RasterStats,
@@ -362,8 +365,7 @@ impl<S: RasterStorage> Rasterizer<S> {
             len: 0,
             t_first: 0,
             t_last: i64::MIN,
-            off_min: 0,
-            off_max: 0,
+            disordered: false,
             pending: None,
             stats: RasterStats::default(),
             summary: WindowSummary::default(),
@@ -445,10 +447,12 @@ impl<S: RasterStorage> Rasterizer<S> {
     /// The fast path of [`Rasterizer::extend`]: stores events into a filling window that
     /// already has its first event, stopping before any event that would close the window.
     ///
-    /// Written for few live values: the buffer and the histogram are sliced to their bounds
-    /// first (no bounds checks in the loop), drops are counted from the consumed count
-    /// afterwards, and the time test is one unsigned compare (`scripts/callgrind-raster.sh`:
-    /// 188.6 → 165.6 instructions per event, rasterization included).
+    /// Written for few live values (`scripts/callgrind-raster.sh`): the buffer and the
+    /// histogram are sliced to their bounds first, the loop runs over at most as many events
+    /// as the window has room for (so it needs no room test), drops are counted from the
+    /// consumed count afterwards, the time test is one unsigned compare, and the window's
+    /// time range is not tracked per event: an in-order window's range is its first and last
+    /// offsets, and the close finds an out-of-order window's range itself.
     fn fill(&mut self, events: &[Event]) -> usize {
         let limit = match self.config.window {
             WindowRule::Events(n) => (n as usize).min(self.capacity),
@@ -461,45 +465,49 @@ impl<S: RasterStorage> Rasterizer<S> {
         };
         let span = (end - i64::from(i32::MIN)) as u64;
         let (width, height, t_first) = (self.config.width, self.config.height, self.t_first);
+        // With |t_first| < 2^62, `t − t_first` wraps only for a true difference beyond ±2^62,
+        // and a wrapped value is then still far outside the i32 offsets this loop accepts: the
+        // wrapping subtraction decides like the exact one. Other windows take `push`.
+        if t_first.unsigned_abs() >= 1 << 62 {
+            return 0;
+        }
         let start = self.len;
-        let (mut lo, mut hi, mut t_last) = (self.off_min, self.off_max, self.t_last);
+        let mut t_last = self.t_last;
         let mut backwards = 0u64;
         let parts = self.storage.parts();
         // The closing event (the `limit`-th) goes through push(): store up to `limit − 1`.
-        let a = &mut parts.a[..limit.saturating_sub(1).max(start)];
+        let room = &mut parts.a[start..limit.saturating_sub(1).max(start)];
         let hist_x = &mut parts.hist_x[..usize::from(width)];
-        let mut len = start;
-        let mut used = events.len();
-        for (i, e) in events.iter().enumerate() {
-            if len == a.len() {
-                used = i;
-                break;
-            }
-            if e.x >= width || e.y >= height {
-                continue; // dropped: counted below
-            }
-            let d = e.t.checked_sub(t_first).unwrap_or(i64::MIN);
-            if (d.wrapping_sub(i64::from(i32::MIN)) as u64) >= span {
-                used = i;
-                break; // a time jump or the end of a duration window: push() decides
-            }
-            let off = d as i32;
-            backwards += u64::from(e.t < t_last);
-            t_last = e.t;
-            lo = lo.min(off);
-            hi = hi.max(off);
-            a[len] = u64::from(e.x)
-                | u64::from(e.y) << Y_SHIFT
-                | u64::from(e.on) << P_SHIFT
-                | u64::from(off as u32) << 32;
-            hist_x[usize::from(e.x)] += 1;
-            len += 1;
+        // Each event takes at most one slot: `room.len()` events cannot overflow it.
+        let room_len = room.len();
+        let batch = &events[..events.len().min(room_len)];
+        let mut slots = room.iter_mut();
+        let mut rest = batch;
+        while let [e, tail @ ..] = rest {
+            if e.x < width && e.y < height {
+                let d = e.t.wrapping_sub(t_first);
+                if (d.wrapping_sub(i64::from(i32::MIN)) as u64) >= span {
+                    break; // a time jump or the end of a duration window: push() decides
+                }
+                backwards += u64::from(e.t < t_last);
+                t_last = e.t;
+                if let (Some(slot), Some(bin)) = (slots.next(), hist_x.get_mut(usize::from(e.x))) {
+                    *slot = u64::from(e.x)
+                        | u64::from(e.y) << Y_SHIFT
+                        | u64::from(e.on) << P_SHIFT
+                        | u64::from(d as i32 as u32) << 32;
+                    *bin += 1;
+                }
+            } // else dropped: counted below
+            rest = tail;
         }
-        let accepted = len - start;
-        self.stats.accepted += accepted as u64;
-        self.stats.dropped_out_of_range += (used - accepted) as u64;
+        let used = batch.len() - rest.len();
+        let len = room_len - slots.len();
+        self.stats.accepted += len as u64;
+        self.stats.dropped_out_of_range += (used - len) as u64;
         self.stats.out_of_order += backwards;
-        (self.len, self.off_min, self.off_max, self.t_last) = (len, lo, hi, t_last);
+        self.disordered |= backwards > 0;
+        (self.len, self.t_last) = (start + len, t_last);
         used
     }
 
@@ -572,23 +580,28 @@ impl<S: RasterStorage> Rasterizer<S> {
             }
         } else {
             self.t_first = event.t;
-            self.off_min = 0;
-            self.off_max = 0;
+            self.disordered = false;
         }
         if event.t < self.t_last {
             self.stats.out_of_order += 1;
+            // Only against an event of this window: the first may precede the last window's.
+            self.disordered |= self.len > 0;
         }
         self.t_last = event.t;
         // In range: checked above against t_first, or 0 for the first event.
         let off = (event.t - self.t_first) as i32;
-        self.off_min = self.off_min.min(off);
-        self.off_max = self.off_max.max(off);
         let parts = self.storage.parts();
-        parts.a[self.len] = u64::from(event.x)
-            | u64::from(event.y) << Y_SHIFT
-            | u64::from(event.on) << P_SHIFT
-            | u64::from(off as u32) << 32;
-        parts.hist_x[usize::from(event.x)] += 1;
+        // `len < capacity` (a full window closes) and `x < width` (checked by `push`).
+        if let (Some(slot), Some(bin)) = (
+            parts.a.get_mut(self.len),
+            parts.hist_x.get_mut(usize::from(event.x)),
+        ) {
+            *slot = u64::from(event.x)
+                | u64::from(event.y) << Y_SHIFT
+                | u64::from(event.on) << P_SHIFT
+                | u64::from(off as u32) << 32;
+            *bin += 1;
+        }
         self.len += 1;
         self.stats.accepted += 1;
         let by_rule = matches!(self.config.window, WindowRule::Events(n) if self.len >= n as usize);
@@ -604,18 +617,25 @@ impl<S: RasterStorage> Rasterizer<S> {
 
     fn close(&mut self) {
         let n = self.len;
-        // An empty window has no time extent (t_first and the offsets belong to an earlier one).
+        let parts = self.storage.parts();
+        // The window's time offsets: from its first event (0) to its last, unless an event
+        // came out of order (then one pass over the stored offsets).
+        let (off_min, off_max) = if self.disordered {
+            offset_range(parts.a.get(..n).unwrap_or_default())
+        } else {
+            (0, self.t_last.wrapping_sub(self.t_first) as i32)
+        };
+        // An empty window has no time extent (t_first and t_last belong to an earlier one).
         self.summary = if n == 0 {
             WindowSummary::default()
         } else {
             WindowSummary {
                 events: n as u32,
-                t_min: self.t_first + i64::from(self.off_min),
-                t_max: self.t_first + i64::from(self.off_max),
+                t_min: self.t_first + i64::from(off_min),
+                t_max: self.t_first + i64::from(off_max),
             }
         };
-        let parts = self.storage.parts();
-        let points = rasterize(&self.config, parts, n, self.off_min, self.off_max);
+        let points = rasterize(&self.config, parts, n, off_min, off_max);
         self.phase = Phase::Closed { points };
         self.stats.windows += 1;
     }
@@ -662,53 +682,97 @@ fn check_config(
     Ok(())
 }
 
+/// The smallest and largest time offsets of buffered event words.
+fn offset_range(words: &[u64]) -> (i32, i32) {
+    words.iter().fold((i32::MAX, i32::MIN), |(lo, hi), &w| {
+        let off = (w >> 32) as u32 as i32;
+        (lo.min(off), hi.max(off))
+    })
+}
+
 /// Turns the `n` buffered events of `parts.a` into points; returns the point count.
+///
+/// Three passes over the events: slices and the column sort in one (A → B), the
+/// `(slice, row)` sort (B → A), and the merge of equal cells into points. Indexing goes
+/// through `get`: every index is in range by construction (columns and rows were checked when
+/// the events were stored, the prefix sums count exactly the events), and a firmware built
+/// from this code links no panic path for them.
 fn rasterize(c: &RasterConfig, p: RasterParts<'_>, n: usize, off_min: i32, off_max: i32) -> usize {
+    let (Some(events), Some(sorted)) = (p.a.get_mut(..n), p.b.get_mut(..n)) else {
+        return 0;
+    };
     if n == 0 {
         return 0;
     }
-    let events = &mut p.a[..n];
-    let sorted = &mut p.b[..n];
-    assign_slices(c, events, p.hist_rows, off_min, off_max);
-    // Stable LSD counting sort: by column, then by (slice, row).
-    exclusive_prefix_sum(&mut p.hist_x[..usize::from(c.width)]);
-    scatter(events, sorted, p.hist_x, |w| (w & X_MASK) as usize);
-    exclusive_prefix_sum(&mut p.hist_rows[..c.row_bins()]);
-    let h = u64::from(c.height);
-    scatter(sorted, events, p.hist_rows, |w| {
-        (((w >> K_SHIFT) & K_MASK) * h + ((w >> Y_SHIFT) & Y_MASK)) as usize
-    });
-    merge_cells(p.a, p.b, n)
+    let (Some(hist_x), Some(hist_rows)) = (
+        p.hist_x.get_mut(..usize::from(c.width)),
+        p.hist_rows.get_mut(..c.row_bins()),
+    ) else {
+        return 0;
+    };
+    // Stable LSD counting sort: by column (while assigning slices), then by (slice, row).
+    exclusive_prefix_sum(hist_x);
+    slice_and_sort_by_column(c, events, sorted, hist_x, hist_rows, off_min, off_max);
+    exclusive_prefix_sum(hist_rows);
+    for &w in sorted.iter() {
+        let key = ((w >> RB_SHIFT) & RB_MASK) as usize;
+        if let Some(start) = hist_rows.get_mut(key) {
+            let at = *start as usize;
+            *start += 1;
+            if let Some(slot) = events.get_mut(at) {
+                *slot = w;
+            }
+        }
+    }
+    merge_cells(p.a, p.b, n, c.height)
 }
 
-/// Replaces each word's time offset by its slice and f32 fraction; counts `(slice, row)` bins.
-fn assign_slices(
+/// One pass over the window's event words (`events`, in arrival order): replaces each time
+/// offset by its slice and f32 fraction, with the reference's f64 arithmetic, counts the
+/// `(slice, row)` bins, and scatters the sorted-word form (`x | row bin | p | fraction`) into
+/// `sorted` by column, stably (`starts`: the columns' exclusive prefix sums).
+fn slice_and_sort_by_column(
     c: &RasterConfig,
-    events: &mut [u64],
+    events: &[u64],
+    sorted: &mut [u64],
+    starts: &mut [u32],
     hist_rows: &mut [u32],
     off_min: i32,
     off_max: i32,
 ) {
     let span = f64::from(off_max) - f64::from(off_min);
-    let k_max = u64::from(c.slices - 1);
     let slices = f64::from(c.slices);
-    let height = usize::from(c.height);
-    for w in events.iter_mut() {
-        let off = (*w >> 32) as u32 as i32;
+    let height = u64::from(c.height);
+    for &w in events {
+        let off = (w >> 32) as u32 as i32;
         let (k, frac) = if span > 0.0 {
             // Same operations, in the same order, as the reference (float64).
             let tn = (f64::from(off) - f64::from(off_min)) / span / SPAN_FACTOR * slices;
-            // tn >= 0, so truncation is floor; tn < K because of the 1.001 factor. (A u32
-            // conversion, not u64: x86 has no direct f64 → u64 instruction before AVX-512, and
-            // every value here is below 256.)
-            let k = u64::from((tn as u32).min(k_max as u32));
-            (k, (tn - k as f64) as f32)
+            // `off − off_min` is in [0, span] (the window's offsets lie between its
+            // extremes), so the first quotient is in [0, 1], the second at most
+            // f64(1 / 1.001) < 0.9991 and `tn` below 0.9991 · K: truncation is floor and
+            // `k ≤ K − 1`, no clamp needed. (A u32 conversion, not u64: x86 has no direct
+            // f64 → u64 instruction before AVX-512.)
+            let k = tn as u32;
+            (k, (tn - f64::from(k)) as f32)
         } else {
             (0, 0.0)
         };
-        let y = ((*w >> Y_SHIFT) & Y_MASK) as usize;
-        hist_rows[k as usize * height + y] += 1;
-        *w = (*w & XYP_MASK) | k << K_SHIFT | u64::from(frac.to_bits()) << 32;
+        let bin = u64::from(k) * height + ((w >> Y_SHIFT) & Y_MASK);
+        if let Some(count) = hist_rows.get_mut(bin as usize) {
+            *count += 1;
+        }
+        let x = w & X_MASK;
+        if let Some(start) = starts.get_mut(x as usize) {
+            let at = *start as usize;
+            *start += 1;
+            if let Some(slot) = sorted.get_mut(at) {
+                *slot = x
+                    | bin << RB_SHIFT
+                    | ((w >> P_SHIFT) & 1) << SORTED_P_SHIFT
+                    | u64::from(frac.to_bits()) << 32;
+            }
+        }
     }
 }
 
@@ -721,54 +785,77 @@ fn exclusive_prefix_sum(bins: &mut [u32]) {
     }
 }
 
-/// Stable counting-sort scatter of `src` into `dst` by `key`, using `starts` (prefix sums).
-fn scatter(src: &[u64], dst: &mut [u64], starts: &mut [u32], key: impl Fn(u64) -> usize) {
-    for &w in src {
-        let slot = &mut starts[key(w)];
-        dst[*slot as usize] = w;
-        *slot += 1;
-    }
-}
-
 /// Merges runs of equal cells in the sorted `a[..n]` into points written to `(a[j], b[j])`.
 ///
 /// Point `j` is written only after event `j` has been read (there are never more points than
 /// events read so far), so the merge runs in place.
-fn merge_cells(a: &mut [u64], b: &mut [u64], n: usize) -> usize {
-    const CELL_MASK: u64 = X_MASK | Y_MASK << Y_SHIFT | K_MASK << K_SHIFT;
+fn merge_cells(a: &mut [u64], b: &mut [u64], n: usize, height: u16) -> usize {
+    const CELL_MASK: u64 = X_MASK | RB_MASK << RB_SHIFT;
+    let Some(&first) = a.first() else {
+        return 0;
+    };
+    let rows = RowDecoder::new(height);
     let mut points = 0;
-    let mut cell = a[0] & CELL_MASK;
+    let mut cell = first & CELL_MASK;
     // ON events are counted; p_acc = ON − OFF = 2·ON − cnt at the end of each cell.
     let (mut cnt, mut on, mut f_acc) = (0u32, 0u32, 0f32);
-    for i in 0..n {
+    for i in 0..n.min(a.len()) {
         let w = a[i];
         if w & CELL_MASK != cell {
-            write_point(a, b, points, cell, cnt, (2 * on) as i32 - cnt as i32, f_acc);
+            write_point(a, b, points, rows.point(cell), cnt, on, f_acc);
             points += 1;
             cell = w & CELL_MASK;
             (cnt, on, f_acc) = (0, 0, 0.0);
         }
         cnt += 1;
-        on += ((w >> P_SHIFT) & 1) as u32;
+        on += ((w >> SORTED_P_SHIFT) & 1) as u32;
         f_acc += f32::from_bits((w >> 32) as u32);
     }
-    write_point(a, b, points, cell, cnt, (2 * on) as i32 - cnt as i32, f_acc);
+    write_point(a, b, points, rows.point(cell), cnt, on, f_acc);
     points + 1
 }
 
-fn write_point(
-    a: &mut [u64],
-    b: &mut [u64],
-    j: usize,
-    cell: u64,
-    cnt: u32,
-    p_acc: i32,
-    f_acc: f32,
-) {
-    let x_y = cell & (X_MASK | Y_MASK << Y_SHIFT);
-    let k = (cell >> K_SHIFT) & K_MASK;
-    a[j] = x_y | k << POINT_K_SHIFT | u64::from(cnt) << 32;
-    b[j] = u64::from(f_acc.to_bits()) | u64::from(p_acc as u32) << 32;
+/// Turns a sorted word's cell (`x | row bin`, row bin `k·H + y`) into the point word's
+/// `x | y | k` with a multiply by a reciprocal instead of a division: `k = ⌊bin · m / 2³²⌋`
+/// with `m = ⌈2³² / H⌉` is exact for every bin below `8 · H ≤ 8,192` (the error
+/// `bin · (m − 2³²/H) / 2³² < 2⁻¹⁹` never reaches the next integer, since the fraction of
+/// `bin / H` is at most `1 − 1/H ≤ 1 − 2⁻¹⁰`; `core/src/raster.rs`'s tests check every `H`).
+#[derive(Clone, Copy)]
+struct RowDecoder {
+    height: u64,
+    reciprocal: u64,
+}
+
+impl RowDecoder {
+    fn new(height: u16) -> Self {
+        let height = u64::from(height.max(1));
+        Self {
+            height,
+            reciprocal: (1u64 << 32).div_ceil(height),
+        }
+    }
+
+    /// `(k, y)` of a row bin.
+    #[inline(always)]
+    fn split(self, bin: u64) -> (u64, u64) {
+        let k = (bin * self.reciprocal) >> 32;
+        (k, bin - k * self.height)
+    }
+
+    /// The point word's cell bits of a sorted word's cell.
+    #[inline(always)]
+    fn point(self, cell: u64) -> u64 {
+        let (k, y) = self.split((cell >> RB_SHIFT) & RB_MASK);
+        (cell & X_MASK) | y << Y_SHIFT | k << POINT_K_SHIFT
+    }
+}
+
+fn write_point(a: &mut [u64], b: &mut [u64], j: usize, cell: u64, cnt: u32, on: u32, f_acc: f32) {
+    let p_acc = (2 * on) as i32 - cnt as i32;
+    if let (Some(wa), Some(wb)) = (a.get_mut(j), b.get_mut(j)) {
+        *wa = cell | u64::from(cnt) << 32;
+        *wb = u64::from(f_acc.to_bits()) | u64::from(p_acc as u32) << 32;
+    }
 }
 
 /// Time extent of a closed window.
@@ -879,5 +966,23 @@ impl Point {
             self.p_acc as f32,
             self.cnt as f32,
         ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The reciprocal split of a row bin into `(k, y)` is the division's, for every sensor
+    /// height and every bin the histogram can hold (`K ≤ 8`).
+    #[test]
+    fn row_decoder_divides_exactly() {
+        for height in 1..=MAX_HEIGHT {
+            let d = RowDecoder::new(height);
+            let h = u64::from(height);
+            for bin in 0..u64::from(MAX_SLICES) * h {
+                assert_eq!(d.split(bin), (bin / h, bin % h), "H = {height}, bin {bin}");
+            }
+        }
     }
 }

@@ -176,6 +176,35 @@ proptest! {
     }
 }
 
+proptest! {
+    /// In-order streams (the common case, whose window range the rasterizer takes from the
+    /// first and last events instead of a pass over the window), through `extend` in buffers
+    /// of any size: every count window rasterizes like the reference, and its summary spans
+    /// its first to its last event. A stream sorted in pieces also puts a window's first event
+    /// before the previous window's last.
+    #[test]
+    fn in_order_windows_match_reference(
+        mut events in events_strategy(300),
+        n in 1u32..64,
+        chunk in 1usize..100,
+        pieces in 1usize..4,
+    ) {
+        let len = events.len();
+        for piece in events.chunks_mut(len.div_ceil(pieces)) {
+            piece.sort_by_key(|e| e.t);
+        }
+        let c = config(WindowRule::Events(n));
+        let (got, _) = outcome_by_extend(c, &events, chunk);
+        let full = events.len() / n as usize;
+        prop_assert_eq!(got.len(), full);
+        for ((points, summary), ch) in got.iter().zip(events.chunks(n as usize)) {
+            prop_assert_eq!(points, &reference(ch, &c));
+            let (lo, hi) = (ch.iter().map(|e| e.t).min(), ch.iter().map(|e| e.t).max());
+            prop_assert_eq!((Some(summary.t_min), Some(summary.t_max)), (lo, hi));
+        }
+    }
+}
+
 trait ClampEvents {
     fn clamp_events(self, cap: u32) -> Self;
 }
