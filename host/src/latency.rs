@@ -45,7 +45,8 @@ pub struct Measured {
     /// Sampling, instructions per window whatever `N` (drawing from the window's `M` points,
     /// M ≈ 2,900): fitted, with the per-point figure, through two firmware runs on the same
     /// windows, 113,680 instructions at N = 256 (this model) and 209,360 at N = 2,048 (the
-    /// earlier 2,048-point model).
+    /// earlier 2,048-point model); re-based on the 123,920 that the same windows measure at
+    /// N = 256 since e0ea59f (the slope kept).
     pub sample_instructions_per_window: f64,
     /// Sampling, instructions per sampled point.
     pub instructions_per_sampled_point: f64,
