@@ -114,6 +114,25 @@ fn reduce4_256<const Q: usize>(a: [[__m256i; Q]; 4]) -> [__m128i; Q] {
 /// The horizontal sums bound the speed: with row-major weights every output needs one (45
 /// µops per 16 outputs for `hsum16_512`), against `K / 64` `vpdpbusd` per output. At
 /// `K = 512` this kernel runs at about two thirds of the `vpdpbusd` peak.
+/// Calls `$f::<Q>` over the `$np` points of a group: blocks of `PB` points, then one block of
+/// the 1 to 3 left. (Splitting `PB + 1` points as `PB − 1` and 2 rather than `PB` and 1
+/// measured slower: the 4 × 1 block runs from L1.)
+macro_rules! by_points {
+    ($np:expr, |$p:ident| $f:ident($($arg:expr),*)) => {{
+        let mut $p = 0;
+        while $p + PB <= $np {
+            $f::<PB>($($arg),*);
+            $p += PB;
+        }
+        match $np - $p {
+            0 => {}
+            1 => $f::<1>($($arg),*),
+            2 => $f::<2>($($arg),*),
+            _ => $f::<3>($($arg),*),
+        }
+    }};
+}
+
 macro_rules! matmat_body {
     (
         $w:ident, $k:ident, $x:ident, $bias:ident, $out:ident, $stride:ident;
@@ -289,34 +308,12 @@ macro_rules! matmat_body {
                     *w = &$w[(o + r) * k..][..k];
                 }
                 let b: &[i32; 4] = $bias[o..o + 4].try_into().unwrap();
-                let mut p = 0;
-                while p + PB <= np {
-                    quad::<PB>(w, b, o, x, k, p, &corr, out, stride);
-                    p += PB;
-                }
-                match np - p {
-                    0 => {}
-                    1 => quad::<1>(w, b, o, x, k, p, &corr, out, stride),
-                    2 => quad::<2>(w, b, o, x, k, p, &corr, out, stride),
-                    // (Splitting PB + 1 points as PB − 1 and 2 rather than PB and 1 measured
-                    // slower: the 4 × 1 block runs from L1.)
-                    _ => quad::<3>(w, b, o, x, k, p, &corr, out, stride),
-                }
+                by_points!(np, |p| quad(w, b, o, x, k, p, &corr, out, stride));
                 o += 4;
             }
             while o < n {
                 let (w, b) = (&$w[o * k..][..k], $bias[o]);
-                let mut p = 0;
-                while p + PB <= np {
-                    single::<PB>(w, b, o, x, k, p, &corr, out, stride);
-                    p += PB;
-                }
-                match np - p {
-                    0 => {}
-                    1 => single::<1>(w, b, o, x, k, p, &corr, out, stride),
-                    2 => single::<2>(w, b, o, x, k, p, &corr, out, stride),
-                    _ => single::<3>(w, b, o, x, k, p, &corr, out, stride),
-                }
+                by_points!(np, |p| single(w, b, o, x, k, p, &corr, out, stride));
                 o += 1;
             }
             g += np;
