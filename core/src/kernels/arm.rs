@@ -108,25 +108,47 @@ fn tail(acc: i32, w: &[i8], x: &[i8]) -> i32 {
     })
 }
 
+/// `w[start..]`, empty when `start` is past its end.
+#[inline(always)]
+fn past(w: &[i8], start: usize) -> &[i8] {
+    w.get(start..).unwrap_or_default()
+}
+
 /// [`super::reference::matvec_i8`], bit-exact, with `SXTB16` and `SMLAD`, two rows at a time
 /// (each unpacked word of `x` serves both). `K = 0` gives `out = bias`.
 pub fn matvec_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
     let k = x.len();
     let n = rows(k, w.len(), bias.len(), out.len());
+    // Slices are cut with the checked methods (all in range by `rows`), so that a firmware
+    // links no panic path here.
+    let (Some(out), Some(bias)) = (out.get_mut(..n), bias.get(..n)) else {
+        return;
+    };
     if k == 0 {
-        out[..n].copy_from_slice(&bias[..n]);
+        for (y, &b) in out.iter_mut().zip(bias) {
+            *y = b;
+        }
         return;
     }
+    let (Some((pairs, last)), Some((outs, out_last)), Some(k2)) = (
+        w.get(..n * k)
+            .and_then(|w| w.split_at_checked(n / 2 * 2 * k)),
+        out.split_at_mut_checked(n / 2 * 2),
+        k.checked_mul(2).filter(|&v| v > 0),
+    ) else {
+        return;
+    };
     let (xs, xt) = x.as_chunks::<4>();
     let full = xs.len() * 4;
-    let (pairs, last) = w[..n * k].split_at(n / 2 * 2 * k);
-    let (outs, out_last) = out[..n].split_at_mut(n / 2 * 2);
+    let rest = |w| past(w, full);
     for ((ws, y), b) in pairs
-        .chunks_exact(2 * k)
+        .chunks_exact(k2)
         .zip(outs.as_chunks_mut::<2>().0)
         .zip(bias.as_chunks::<2>().0)
     {
-        let (w0, w1) = ws.split_at(k);
+        let Some((w0, w1)) = ws.split_at_checked(k) else {
+            return;
+        };
         let (mut a0, mut a1) = (b[0], b[1]);
         for ((xv, w0v), w1v) in xs.iter().zip(w0.as_chunks().0).zip(w1.as_chunks().0) {
             let xw = word(xv);
@@ -134,18 +156,15 @@ pub fn matvec_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
             a0 = step(a0, w0v, xu);
             a1 = step(a1, w1v, xu);
         }
-        *y = [tail(a0, &w0[full..], xt), tail(a1, &w1[full..], xt)];
+        *y = [tail(a0, rest(w0), xt), tail(a1, rest(w1), xt)];
     }
-    if let [y] = out_last {
-        // An odd row count: the last row alone (`n ≥ 1` here, and `bias` holds `n` values).
-        let acc = xs
-            .iter()
-            .zip(last.as_chunks().0)
-            .fold(bias[n - 1], |a, (xv, wv)| {
-                let xw = word(xv);
-                step(a, wv, (sxtb16(xw), sxtb16_ror8(xw)))
-            });
-        *y = tail(acc, &last[full..], xt);
+    if let ([y], Some(&b)) = (out_last, bias.last()) {
+        // An odd row count: the last row alone.
+        let acc = xs.iter().zip(last.as_chunks().0).fold(b, |a, (xv, wv)| {
+            let xw = word(xv);
+            step(a, wv, (sxtb16(xw), sxtb16_ror8(xw)))
+        });
+        *y = tail(acc, rest(last), xt);
     }
 }
 

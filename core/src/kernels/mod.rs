@@ -141,8 +141,12 @@ pub const fn matmat_dims(
     if o == 0 || out_len < o {
         return (0, 0);
     }
-    // o ≥ 1 implies out_stride ≥ 1.
-    let fit = (out_len - o) / out_stride + 1;
+    // o ≥ 1 implies out_stride ≥ 1 (a checked division all the same: no panic path in a
+    // firmware image for the compiler's sake).
+    let fit = match (out_len - o).checked_div(out_stride) {
+        Some(f) => f + 1,
+        None => return (0, 0),
+    };
     let p = match x_len.checked_div(k) {
         Some(p) if p < fit => p,
         _ => fit,

@@ -33,12 +33,23 @@ pub fn matmat_by_rows(
     out_stride: usize,
 ) {
     let (points, rows) = super::matmat_dims(k, w.len(), x.len(), bias.len(), out.len(), out_stride);
-    for p in 0..points {
-        let y = &mut out[p * out_stride..][..rows];
+    // `points ≥ 1` implies `out_stride ≥ 1`; `NonZero` tells the compiler so.
+    let (true, Some(stride)) = (points > 0, core::num::NonZeroUsize::new(out_stride)) else {
+        return;
+    };
+    // Slices cut with `get` (every one is in range by `matmat_dims`): no panic path in a
+    // firmware image.
+    let bias = bias.get(..rows).unwrap_or_default();
+    for (p, y) in out.chunks_mut(stride.get()).take(points).enumerate() {
+        let Some(y) = y.get_mut(..rows) else {
+            return;
+        };
         if k == 0 {
-            y.copy_from_slice(&bias[..rows]);
-        } else {
-            matvec(w, &x[p * k..][..k], bias, y);
+            for (y, &b) in y.iter_mut().zip(bias) {
+                *y = b;
+            }
+        } else if let Some(x) = x.get(p * k..(p + 1) * k) {
+            matvec(w, x, bias, y);
         }
     }
 }
