@@ -5,6 +5,12 @@
 use evpose_core::kernels::{self, packed, reference, Isa, Kernels, PackedI8};
 use proptest::prelude::*;
 
+/// `n` property cases, or 2 under Miri (`scripts/miri.sh`), which interprets about a thousand
+/// times slower.
+fn cases(n: u32) -> ProptestConfig {
+    ProptestConfig::with_cases(if cfg!(miri) { 2 } else { n })
+}
+
 /// The kernels to test: every one this CPU runs except the reference itself.
 fn candidates() -> Vec<Kernels> {
     Isa::ALL
@@ -179,7 +185,7 @@ fn shape<T: std::fmt::Debug + Clone>(
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(512))]
+    #![proptest_config(cases(512))]
 
     #[test]
     fn i8_kernels_match_reference((w, x, b, n) in shape(any_i8(), 0..600)) {
@@ -230,22 +236,38 @@ fn sweep_products(k: usize) {
 }
 
 #[test]
+#[cfg_attr(
+    miri,
+    ignore = "too slow interpreted; the property tests run the same kernels under Miri"
+)]
 fn i8_all_products_k1() {
     sweep_products(1);
 }
 
 #[test]
+#[cfg_attr(
+    miri,
+    ignore = "too slow interpreted; the property tests run the same kernels under Miri"
+)]
 fn i8_all_products_k64() {
     sweep_products(64);
 }
 
 #[test]
+#[cfg_attr(
+    miri,
+    ignore = "too slow interpreted; the property tests run the same kernels under Miri"
+)]
 fn i8_all_products_k67() {
     // A full 64-lane chunk plus a 3-lane tail.
     sweep_products(67);
 }
 
 #[test]
+#[cfg_attr(
+    miri,
+    ignore = "too slow interpreted; the property tests run the same kernels under Miri"
+)]
 fn i16_all_extreme_pairs() {
     // (−32768)² · 2 = 2^31 leaves i32 inside `vpmaddwd`; the result must still be the residue.
     let ext = [i16::MIN, i16::MIN + 1, -1, 0, 1, i16::MAX];
@@ -299,6 +321,10 @@ fn mismatched_lengths_touch_the_reference_rows_only() {
 }
 
 #[test]
+#[cfg_attr(
+    miri,
+    ignore = "too slow interpreted; the property tests run the same kernels under Miri"
+)]
 fn model_shapes() {
     // The PointNet layers (K → out) the int8 engine runs, with pseudo-random values.
     let mut s = 0x2545_F491_4F6C_DD1Du64;
@@ -459,7 +485,7 @@ fn mm_shape(
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(512))]
+    #![proptest_config(cases(512))]
 
     #[test]
     fn i8_matmat_kernels_match_reference((w, k, x, b, n, s) in mm_shape(0..600)) {
@@ -504,6 +530,10 @@ fn sweep_products_mm(k: usize, stride: usize) {
 }
 
 #[test]
+#[cfg_attr(
+    miri,
+    ignore = "too slow interpreted; the property tests run the same kernels under Miri"
+)]
 fn i8_matmat_all_products() {
     for k in [1, 16, 31, 32, 33, 64, 67, 128, 131] {
         sweep_products_mm(k, 256);
@@ -578,6 +608,10 @@ fn i8_matmat_k_zero_p_zero_and_degenerate_strides() {
 }
 
 #[test]
+#[cfg_attr(
+    miri,
+    ignore = "too slow interpreted; the property tests run the same kernels under Miri"
+)]
 fn i8_matmat_model_shapes() {
     // The PointNet point layers (K → O) at the block sizes the engine uses, into rows wider
     // than O; and P = 1 and 33 (two groups and a remainder) on conv5 and fc1.
@@ -790,7 +824,7 @@ fn near_limits_or_any() -> impl Strategy<Value = i32> + Clone {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(256))]
+    #![proptest_config(cases(256))]
 
     /// Sums that leave the i32 range wrap to the exact sum's residue modulo 2^32 in every
     /// native int8 kernel and in the (emulated) Cortex-M DSP kernel: the reference's release
@@ -853,6 +887,10 @@ proptest! {
 }
 
 #[test]
+#[cfg_attr(
+    miri,
+    ignore = "too slow interpreted; the property tests run the same kernels under Miri"
+)]
 fn i8_packed_all_products_and_model_shapes() {
     // Every int8 product: 256 rows, one per weight value, times points holding every value.
     let k = 67;
@@ -959,7 +997,7 @@ fn check_f32(w: &[f32], x: &[f32], bias: &[f32], out_len: usize) {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(512))]
+    #![proptest_config(cases(512))]
 
     #[test]
     fn f32_kernels_match_reference_bits((w, x, b, n) in shape_f32(0..300)) {
@@ -973,6 +1011,10 @@ proptest! {
 }
 
 #[test]
+#[cfg_attr(
+    miri,
+    ignore = "too slow interpreted; the property tests run the same kernels under Miri"
+)]
 fn f32_model_shapes() {
     // The paper model's point layers and heads (K, rows), and its FC layers' K with a few rows
     // (odd counts, for the rows past the last group of four).
@@ -1002,7 +1044,7 @@ fn f32_model_shapes() {
 // Requantization and pooling, the engine's loops between kernels.
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(512))]
+    #![proptest_config(cases(512))]
 
     #[test]
     fn requantize_matches_reference_in_every_table(
@@ -1053,6 +1095,10 @@ proptest! {
 }
 
 #[test]
+#[cfg_attr(
+    miri,
+    ignore = "too slow interpreted; the property tests run the same kernels under Miri"
+)]
 fn peak_loop_runs_every_family_this_cpu_has() {
     assert_eq!(kernels::peak_loop(Isa::Reference, 10), None);
     for isa in Isa::ALL.into_iter().filter(|&i| i != Isa::Reference) {
@@ -1069,6 +1115,7 @@ fn peak_loop_runs_every_family_this_cpu_has() {
 
 #[cfg(target_arch = "x86_64")]
 #[test]
+#[cfg_attr(miri, ignore = "Miri runs no cpuid")]
 fn cpuid_detection_matches_std() {
     use evpose_core::kernels::x86::Features;
     let f = Features::detect();
