@@ -107,7 +107,10 @@ pub fn kernels(k: &Kernels) -> Report {
                 w.iter_mut().for_each(|v| *v = value(&mut rng));
                 x.iter_mut().for_each(|v| *v = value(&mut rng));
                 bias.iter_mut().for_each(|v| *v = rng.next() as i32);
-                let (mut got, mut want) = ([0x5A5A_5A5Ai32; 6 * MAX_POINTS], [0x5A5A_5A5Ai32; 6 * MAX_POINTS]);
+                let (mut got, mut want) = (
+                    [0x5A5A_5A5Ai32; 6 * MAX_POINTS],
+                    [0x5A5A_5A5Ai32; 6 * MAX_POINTS],
+                );
                 let (w, x, bias) = (&w[..rows * kk], &x[..points * kk], &bias[..rows]);
                 k.matmat_i8(w, kk, x, bias, &mut got, stride);
                 for (p, xp) in x.chunks_exact(kk).enumerate() {
@@ -126,7 +129,8 @@ pub fn kernels(k: &Kernels) -> Report {
         let (mut max, mut sum, mut y) = ([0i8; 128], [0i32; 128], [0i8; 128]);
         max.iter_mut().for_each(|v| *v = value(&mut rng));
         y.iter_mut().for_each(|v| *v = value(&mut rng));
-        sum.iter_mut().for_each(|v| *v = i32::MAX - (rng.next() % 256) as i32);
+        sum.iter_mut()
+            .for_each(|v| *v = i32::MAX - (rng.next() % 256) as i32);
         let (mut m, mut s) = (max, sum);
         k.pool_i8(&mut m[..len], &mut s[..len], &y[..len]);
         reference::pool_i8(&mut max[..len], &mut sum[..len], &y[..len]);

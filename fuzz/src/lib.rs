@@ -51,7 +51,13 @@ fn parse_and_run(data: &[u8]) {
     let points: Vec<[f32; 5]> = (0..n)
         .map(|i| {
             let v = i as f32;
-            [v % 346.0, v % 260.0, (v * 0.37) % 1.0, v % 3.0 - 1.0, 1.0 + v % 4.0]
+            [
+                v % 346.0,
+                v % 260.0,
+                (v * 0.37) % 1.0,
+                v % 3.0 - 1.0,
+                1.0 + v % 4.0,
+            ]
         })
         .collect();
     let _ = match runner.model().dtype() {
@@ -115,5 +121,9 @@ pub fn raster(data: &[u8]) {
     let w = raster.flush();
     assert!(w.len() <= capacity);
     let s = *raster.stats();
-    assert_eq!(s.accepted + s.dropped_out_of_range, events.len() as u64, "{s:?}");
+    assert_eq!(
+        s.accepted + s.dropped_out_of_range,
+        events.len() as u64,
+        "{s:?}"
+    );
 }
