@@ -19,11 +19,13 @@
 //!
 //! # Algorithm
 //! While a window fills, each event is packed into one word of buffer A and counted in a
-//! per-column histogram. On close, one pass turns each word into its slice and fraction and
-//! counts `(slice, row)`; two stable counting-sort passes (by column into buffer B, then by
-//! `(slice, row)` back into A) put events in cell order while keeping arrival order inside a cell,
-//! so the f32 fraction sums add up in the same order as the reference. A final pass merges runs of
-//! equal cells into points, written over the consumed prefix of A and B.
+//! per-column histogram; the window's time range is its first and last event's unless an event
+//! came out of order (then the close finds it in one pass). On close, two stable counting-sort
+//! passes put events in cell order while keeping arrival order inside a cell, so the f32
+//! fraction sums add up in the same order as the reference: the first turns each word into its
+//! slice and fraction, counts its `(slice, row)` bin and scatters it by column into buffer B
+//! (the bin written into the word), the second scatters by bin back into A. A final pass merges
+//! runs of equal cells into points, written over the consumed prefix of A and B.
 //!
 //! # Odd input, defined
 //! - A pixel outside the configured sensor is dropped and counted ([`RasterStats::dropped_out_of_range`]).
