@@ -10,7 +10,7 @@
 #   bash scripts/miri.sh [CARGO TEST ARGS…]     # e.g. bash scripts/miri.sh --test raster
 #
 # Property tests run PROPTEST_CASES cases each (default 4: Miri interprets about 1,000× slower
-# than native code). Needs the nightly toolchain with the miri and rust-src components
+# than native code); the kernel tests set 2 under Miri themselves. Needs the nightly toolchain with the miri and rust-src components
 # (installed here if missing). Not part of scripts/test.sh: it takes about 19 minutes.
 set -euo pipefail
 cd "$(dirname "$0")/.."

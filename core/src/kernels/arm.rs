@@ -1,11 +1,17 @@
-//! The Cortex-M int8 kernel with the DSP extension (Armv7E-M, Armv8-M Mainline with DSP):
+//! The Cortex-M int8 kernels with the DSP extension (Armv7E-M, Armv8-M Mainline with DSP):
 //! `SXTB16` unpacks two int8 into two i16 halfwords, `SMLAD` multiplies two pairs of halfwords
-//! and adds both products to an accumulator, two MACs per instruction. This is CMSIS-NN's
-//! fully-connected inner step (`arm_nn_vec_mat_mult_t_s8`): per four inputs of two rows, one
-//! word of `x` unpacked once (`SXTB16` and `SXTB16` of the word rotated by 8: bytes 0, 2 and
-//! 1, 3), one word of each row unpacked the same way, and four `SMLAD`.
+//! and adds both products to an accumulator, two MACs per instruction.
 //!
-//! The three instructions are inline assembly on `target_arch = "arm"` with the `arm-dsp`
+//! - [`matvec_i8`] is CMSIS-NN's fully-connected inner step (`arm_nn_vec_mat_mult_t_s8`): per
+//!   four inputs of two rows, one word of `x` unpacked once (`SXTB16` and `SXTB16` of the word
+//!   rotated by 8: bytes 0, 2 and 1, 3), one word of each row unpacked the same way, and four
+//!   `SMLAD`.
+//! - [`matmat_i8`] computes [`BLOCK_POINTS`] points per weight load (CMSIS-NN's 1×1
+//!   convolution does two): the block's inputs are unpacked once, and each row runs over them
+//!   in one inline-assembly loop (`LDR`, two `SXTB16`, four `LDRD`, eight `SMLAD` per 16 MACs).
+//! - [`pool_i8`] takes the maxima of four channels at once with `SSUB8` and `SEL`.
+//!
+//! The instructions are inline assembly on `target_arch = "arm"` with the `arm-dsp`
 //! cargo feature: stable Rust cannot see the DSP extension in `cfg(target_feature)`, and the
 //! `core::arch::arm` intrinsics for it are unstable, so a firmware whose core has the extension
 //! opts in (thumbv6m, thumbv7m and thumbv8m.base lack it). Everywhere else they are emulated in
@@ -343,9 +349,9 @@ fn block_steps(acc: &mut [i32; BLOCK_POINTS], row: &[i8], xu: &[[u32; 2 * BLOCK_
                 )
             };
         }
-        // 16 instructions per 16 MACs and the loop branch per 32: LLVM's own schedule of the
-        // same steps (the Rust twin below) spent 26 per 16, with register moves and one load
-        // per unpacked word.
+        // 15 instructions per 16 MACs and the loop's compare and branch per 32: 32 per 32
+        // MACs. LLVM's own schedule of the same steps (the Rust twin below) spent 26 per 16,
+        // with register moves and one load per unpacked word.
         // SAFETY: the loop reads `n` words from `ws` (`n ≤ ws.len()`, 4 bytes each, `LDR`
         // takes unaligned addresses on Armv7E-M) and `n` entries of 32 bytes from `xu`
         // (`n ≤ xu.len()`, `LDRD` needs 4-byte alignment, which `u32` gives), and stops when

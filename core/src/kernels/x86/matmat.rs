@@ -100,20 +100,6 @@ fn reduce4_256<const Q: usize>(a: [[__m256i; Q]; 4]) -> [__m128i; Q] {
     s
 }
 
-/// The matrix-matrix loop shared by the int8 kernels (see [`super::MatmatI8`]).
-///
-/// Points go in groups of [`GROUP`]; inside a group, for each block of four weight rows, the
-/// points go `points` at a time (then the 1 to `points − 1` left over): one register block
-/// holds `4 × points` accumulators, each weight vector loaded (and biased) once serves `points`
-/// points and each `x` vector four rows. The four rows' weights (`4 · K` bytes) come from
-/// memory for the first block of points and from L1 for the others. The rows left over after
-/// the blocks of four go one at a time; a group of one point goes to the family's `matvec`
-/// kernel. The other parameters are [`matvec_body`]'s; `corr(x_p)` is point `p`'s correction,
-/// computed once per point per call.
-///
-/// The horizontal sums bound the speed: with row-major weights every output needs one (45
-/// µops per 16 outputs for `hsum16_512`), against `K / 64` `vpdpbusd` per output. At
-/// `K = 512` this kernel runs at about two thirds of the `vpdpbusd` peak.
 /// Calls `$f::<Q>` over the `$np` points of a group: blocks of `PB` points, then one block of
 /// the 1 to 3 left. (Splitting `PB + 1` points as `PB − 1` and 2 rather than `PB` and 1
 /// measured slower: the 4 × 1 block runs from L1.)
@@ -133,6 +119,20 @@ macro_rules! by_points {
     }};
 }
 
+/// The matrix-matrix loop shared by the int8 kernels (see [`super::MatmatI8`]).
+///
+/// Points go in groups of [`GROUP`]; inside a group, for each block of four weight rows, the
+/// points go `points` at a time (then the 1 to `points − 1` left over): one register block
+/// holds `4 × points` accumulators, each weight vector loaded (and biased) once serves `points`
+/// points and each `x` vector four rows. The four rows' weights (`4 · K` bytes) come from
+/// memory for the first block of points and from L1 for the others. The rows left over after
+/// the blocks of four go one at a time; a group of one point goes to the family's `matvec`
+/// kernel. The other parameters are [`matvec_body`]'s; `corr(x_p)` is point `p`'s correction,
+/// computed once per point per call.
+///
+/// The horizontal sums bound the speed: with row-major weights every output needs one (45
+/// µops per 16 outputs for `hsum16_512`), against `K / 64` `vpdpbusd` per output. At
+/// `K = 512` this kernel runs at about two thirds of the `vpdpbusd` peak.
 macro_rules! matmat_body {
     (
         $w:ident, $k:ident, $x:ident, $bias:ident, $out:ident, $stride:ident;
