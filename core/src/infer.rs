@@ -12,7 +12,7 @@
 
 use core::fmt;
 
-use crate::kernels::packed::{packed_len, PackedI8};
+use crate::kernels::packed::{packed_len_of, Lane, Packed, PackedI16, PackedI8};
 use crate::kernels::Kernels;
 use crate::model::{Bias, DType, Layer, LayerKind, Model, Weights, FEATURES, MAX_POINT_LAYERS};
 use crate::quant::{self, InputCoding, Requant};
@@ -217,9 +217,9 @@ impl<'m> Plan<'m> {
     }
 
     /// [`Plan::new`] for an int8 model whose point layers were packed
-    /// ([`pack_point_layers`], [`PackedLayout::weights`]) for [`Kernels::matmat_packed_i8`]:
-    /// the same integers, faster where `kernels` has a native packed kernel
-    /// ([`Kernels::has_packed`]).
+    /// ([`pack_point_layers`], [`PackedLayout::weights`]) for [`Kernels::matmat_packed_i8`]
+    /// (and its int16 first layer for [`Kernels::matmat_packed_i16`]): the same integers,
+    /// faster where `kernels` has native packed kernels ([`Kernels::has_packed`]).
     pub fn packed(
         model: &'m Model<'m>,
         kernels: Kernels,
@@ -265,11 +265,15 @@ impl<'m> Plan<'m> {
         if let Some(p) = packed {
             for i in 0..model.point_layer_count() {
                 let l = model.layer(i);
-                if let (Weights::I8(_), w) = (l.weights, p.layers[i]) {
-                    let (rows, k) = (l.desc.out_dim as usize, l.desc.in_dim as usize);
-                    if !w.is_some_and(|w| w.rows() == rows && w.k() == k) {
-                        return Err(InferError::PackedModel);
-                    }
+                let shape = (l.desc.out_dim as usize, l.desc.in_dim as usize);
+                let fits = match (l.weights, p.layers[i]) {
+                    (Weights::I8(_), Some(PackedLayer::I8(w))) => (w.rows(), w.k()) == shape,
+                    (Weights::I16(_), Some(PackedLayer::I16(w))) => (w.rows(), w.k()) == shape,
+                    (Weights::F32(_), None) => true,
+                    _ => false,
+                };
+                if !fits {
+                    return Err(InferError::PackedModel);
                 }
             }
         }
@@ -504,6 +508,10 @@ impl<'m> Plan<'m> {
                 let acc = &mut acc[..n * out_dim];
                 let packed = self.packed.and_then(|p| p.layers[i]);
                 match (l.weights, packed) {
+                    // The coded points, 8 i16 apart, through the packed first layer.
+                    (Weights::I16(_), Some(PackedLayer::I16(w))) => {
+                        k.matmat_packed_i16(&w, &inputs[..n * 8], 8, n, bias, acc, out_dim);
+                    }
                     (Weights::I16(w), _) => {
                         for (x, acc) in inputs.chunks_exact(8).zip(acc.chunks_exact_mut(out_dim)) {
                             k.matvec_i16(w, &x[..FEATURES], bias, acc);
@@ -511,7 +519,7 @@ impl<'m> Plan<'m> {
                     }
                     // The sources are a contiguous run of each point's activation row: read
                     // them in place, rows `acts_len` apart.
-                    (Weights::I8(_), Some(w)) => {
+                    (Weights::I8(_), Some(PackedLayer::I8(w))) => {
                         let src = source_range(l.desc.sources, offs);
                         k.matmat_packed_i8(&w, &acts[src.start..], acts_len, n, bias, acc, out_dim);
                     }
@@ -531,6 +539,10 @@ impl<'m> Plan<'m> {
                             row.copy_from_slice(&act[src.clone()]);
                         }
                         k.matmat_i8(w, k_in, &gathered[..n * k_in], bias, acc, out_dim);
+                    }
+                    // Ruled out by the plan.
+                    (Weights::I8(_), Some(PackedLayer::I16(_))) => {
+                        return Err(InferError::PackedModel)
                     }
                     (Weights::F32(_), _) => return Err(InferError::DType),
                 }
@@ -649,13 +661,20 @@ fn leaky_f32(v: &mut [f32], alpha: Option<f32>) {
 /// Alignment of the packed weights (a cache line), part of [`packed_bytes`].
 const PACK_ALIGN: usize = 64;
 
-/// Bytes of buffer [`pack_point_layers`] needs for `model`'s int8 point layers (the packed
-/// weights plus up to 63 bytes to align them to a cache line). 0 for an f32 model.
+/// Bytes of buffer [`pack_point_layers`] needs for `model`'s int8 and int16 point layers (the
+/// packed weights plus up to 63 bytes to align them to a cache line). 0 for an f32 model.
 pub fn packed_bytes(model: &Model<'_>) -> usize {
     let packed: usize = (0..model.point_layer_count())
-        .map(|i| model.layer(i))
-        .filter(|l| matches!(l.weights, Weights::I8(_)))
-        .map(|l| packed_len(l.desc.out_dim as usize, l.desc.in_dim as usize).unwrap_or(usize::MAX))
+        .map(|i| {
+            let l = model.layer(i);
+            let (rows, k) = (l.desc.out_dim as usize, l.desc.in_dim as usize);
+            match l.weights {
+                Weights::I8(_) => packed_len_of::<i8>(rows, k),
+                Weights::I16(_) => packed_len_of::<i16>(rows, k),
+                Weights::F32(_) => Some(0),
+            }
+            .unwrap_or(usize::MAX)
+        })
         .fold(0usize, usize::saturating_add);
     if packed == 0 {
         0
@@ -664,7 +683,7 @@ pub fn packed_bytes(model: &Model<'_>) -> usize {
     }
 }
 
-/// Where [`pack_point_layers`] put each int8 point layer's packed weights (see
+/// Where [`pack_point_layers`] put each int8 and int16 point layer's packed weights (see
 /// [`crate::kernels::packed`]) in the caller's buffer. Small and `Copy`: keep it next to the buffer,
 /// and get the weights back for [`Plan::packed`] with [`PackedLayout::weights`].
 ///
@@ -700,12 +719,21 @@ impl PackedLayout {
         for (i, (slot, &(start, len))) in layers.iter_mut().zip(&self.layers).enumerate() {
             if len > 0 {
                 let l = model.layer(i);
-                let bytes = buf.get(start..start.saturating_add(len));
+                let bytes = buf
+                    .get(start..start.saturating_add(len))
+                    .ok_or(InferError::PackedBuffer)?;
                 let (rows, k) = (l.desc.out_dim as usize, l.desc.in_dim as usize);
                 *slot = Some(
-                    bytes
-                        .and_then(|b| PackedI8::from_packed(b, rows, k))
-                        .ok_or(InferError::PackedBuffer)?,
+                    match l.weights {
+                        Weights::I8(_) => {
+                            PackedI8::from_packed(bytes, rows, k).map(PackedLayer::I8)
+                        }
+                        Weights::I16(_) => {
+                            PackedI16::from_packed(bytes, rows, k).map(PackedLayer::I16)
+                        }
+                        Weights::F32(_) => None,
+                    }
+                    .ok_or(InferError::PackedBuffer)?,
                 );
             }
         }
@@ -720,14 +748,21 @@ impl PackedLayout {
 /// [`PackedLayout::weights`]).
 #[derive(Clone, Copy, Debug)]
 pub struct PackedWeights<'b> {
-    layers: [Option<PackedI8<'b>>; MAX_POINT_LAYERS],
+    layers: [Option<PackedLayer<'b>>; MAX_POINT_LAYERS],
     checksum: u32,
 }
 
-/// Packs `model`'s int8 point layers into `buf` (at least [`packed_bytes`] long) and says
-/// where they are; keep `buf` where it is (a `Vec`'s heap buffer stays put when the `Vec`
-/// moves) and use [`PackedLayout::weights`] to run. The i16 first layer is not packed (five
-/// inputs: nothing to gain). The weights start at a cache-line boundary of `buf`.
+/// One packed point layer: the int16 first layer or an int8 one.
+#[derive(Clone, Copy, Debug)]
+enum PackedLayer<'b> {
+    I8(PackedI8<'b>),
+    I16(PackedI16<'b>),
+}
+
+/// Packs `model`'s int8 point layers and its int16 first layer into `buf` (at least
+/// [`packed_bytes`] long) and says where they are; keep `buf` where it is (a `Vec`'s heap
+/// buffer stays put when the `Vec` moves) and use [`PackedLayout::weights`] to run. The weights
+/// start at a cache-line boundary of `buf`.
 pub fn pack_point_layers(model: &Model<'_>, buf: &mut [u8]) -> Result<PackedLayout, InferError> {
     let (needed, got) = (packed_bytes(model), buf.len());
     if got < needed {
@@ -741,21 +776,27 @@ pub fn pack_point_layers(model: &Model<'_>, buf: &mut [u8]) -> Result<PackedLayo
         .take(model.point_layer_count())
     {
         let l = model.layer(i);
-        if let Weights::I8(w) = l.weights {
-            let (rows, k) = (l.desc.out_dim as usize, l.desc.in_dim as usize);
-            let (packed, _) = buf
-                .get_mut(at..)
-                .and_then(|rest| PackedI8::pack(w, rows, k, rest))
-                .ok_or(InferError::PackBuffer { needed, got })?;
-            *slot = (at, packed.byte_len());
-            at += packed.byte_len();
+        let (rows, k) = (l.desc.out_dim as usize, l.desc.in_dim as usize);
+        let rest = buf.get_mut(at..).unwrap_or_default();
+        let len = match l.weights {
+            Weights::I8(w) => pack_len(w, rows, k, rest),
+            Weights::I16(w) => pack_len(w, rows, k, rest),
+            Weights::F32(_) => Some(0),
         }
+        .ok_or(InferError::PackBuffer { needed, got })?;
+        *slot = (at, len);
+        at += len;
     }
     Ok(PackedLayout {
         layers,
         checksum: model.checksum(),
         buffer: (buf.as_ptr() as usize, got),
     })
+}
+
+/// Packs `w` into the front of `buf`; the packed length.
+fn pack_len<T: Lane>(w: &[T], rows: usize, k: usize, buf: &mut [u8]) -> Option<usize> {
+    Packed::pack(w, rows, k, buf).map(|(p, _)| p.byte_len())
 }
 
 /// Which kind of layer reads the pooled features (for reports).

@@ -2,7 +2,7 @@
 //!
 //! Kernels whose instructions the CPU lacks are skipped and named (`--nocapture` shows them).
 
-use evpose_core::kernels::{self, packed, reference, Isa, Kernels, PackedI8};
+use evpose_core::kernels::{self, packed, reference, Isa, Kernels, PackedI16, PackedI8};
 use proptest::prelude::*;
 
 /// `n` property cases, or 2 under Miri (`scripts/miri.sh`), which interprets about a thousand
@@ -671,11 +671,11 @@ fn i8_matmat_equals_matvec_per_point() {
 /// The expected `out` of a packed call, from the reference matvec per point on the row-major
 /// weights, with the shape rules written out independently of `packed::packed_dims`.
 #[allow(clippy::too_many_arguments)]
-fn expected_packed(
-    w: &[i8],
+fn expected_packed<T: Copy + Into<i64>>(
+    w: &[T],
     rows: usize,
     k: usize,
-    x: &[i8],
+    x: &[T],
     x_stride: usize,
     points: usize,
     bias: &[i32],
@@ -703,23 +703,66 @@ fn expected_packed(
     o
 }
 
+/// A weight type with packed kernels: packing and the calls, for [`check_packed`].
+trait PackedKernel: packed::Lane + Into<i64> {
+    fn reference(w: &[Self], rows: usize, k: usize, io: PackedIo<'_, Self>, buf: &mut [u8]);
+    fn table(kern: &Kernels, w: &[Self], rows: usize, k: usize, io: PackedIo<'_, Self>);
+}
+
+/// `(x, x_stride, points, bias, out, out_stride)` of a packed call.
+type PackedIo<'a, T> = (&'a [T], usize, usize, &'a [i32], &'a mut [i32], usize);
+
+/// Packs `w` for one call, into a buffer 5 bytes longer than needed (which must stay unused).
+fn pack_for<T: packed::Lane>(w: &[T], rows: usize, k: usize) -> Vec<u8> {
+    let mut buf = vec![0u8; packed::packed_len_of::<T>(rows, k).expect("fits") + 5];
+    let (_, rest) = packed::Packed::pack(w, rows, k, &mut buf).expect("pack");
+    assert_eq!(rest.len(), 5);
+    buf
+}
+
+macro_rules! packed_kernel {
+    ($($t:ty => $packed:ident, $reference:path, $method:ident;)*) => {$(
+        impl PackedKernel for $t {
+            fn reference(
+                w: &[$t],
+                rows: usize,
+                k: usize,
+                (x, xs, p, b, o, os): PackedIo<'_, $t>,
+                buf: &mut [u8],
+            ) {
+                let (pw, _) = $packed::pack(w, rows, k, buf).expect("pack");
+                $reference(&pw, x, xs, p, b, o, os);
+            }
+            fn table(kern: &Kernels, w: &[$t], rows: usize, k: usize, io: PackedIo<'_, $t>) {
+                let mut buf = pack_for(w, rows, k);
+                let (pw, _) = $packed::pack(w, rows, k, &mut buf).expect("pack");
+                let (x, xs, p, b, o, os) = io;
+                kern.$method(&pw, x, xs, p, b, o, os);
+            }
+        }
+    )*};
+}
+
+packed_kernel! {
+    i8 => PackedI8, packed::matmat_packed_i8, matmat_packed_i8;
+    i16 => PackedI16, packed::matmat_packed_i16, matmat_packed_i16;
+}
+
 /// Packs `w` and checks every table's packed kernel (native or the reference fallback) and the
 /// raw reference against [`expected_packed`], with a sentinel-filled `out` of `out_len`.
 #[allow(clippy::too_many_arguments)]
-fn check_packed(
-    w: &[i8],
+fn check_packed<T: PackedKernel>(
+    w: &[T],
     rows: usize,
     k: usize,
-    x: &[i8],
+    x: &[T],
     x_stride: usize,
     points: usize,
     bias: &[i32],
     out_len: usize,
     out_stride: usize,
 ) {
-    let mut buf = vec![0u8; packed::packed_len(rows, k).expect("fits") + 5];
-    let (pw, rest) = PackedI8::pack(w, rows, k, &mut buf).expect("pack");
-    assert_eq!(rest.len(), 5);
+    let mut buf = pack_for(w, rows, k);
     let out = vec![0x5A5A_5A5A; out_len];
     let want = expected_packed(w, rows, k, x, x_stride, points, bias, &out, out_stride);
     let ctx = format!(
@@ -729,11 +772,23 @@ fn check_packed(
         bias.len()
     );
     let mut got = out.clone();
-    packed::matmat_packed_i8(&pw, x, x_stride, points, bias, &mut got, out_stride);
+    T::reference(
+        w,
+        rows,
+        k,
+        (x, x_stride, points, bias, &mut got, out_stride),
+        &mut buf,
+    );
     assert_eq!(got, want, "packed reference, {ctx}");
     for kern in with_reference_table() {
         let mut got = out.clone();
-        kern.matmat_packed_i8(&pw, x, x_stride, points, bias, &mut got, out_stride);
+        T::table(
+            &kern,
+            w,
+            rows,
+            k,
+            (x, x_stride, points, bias, &mut got, out_stride),
+        );
         assert_eq!(got, want, "{} packed, {ctx}", kern.name());
     }
 }
@@ -742,14 +797,15 @@ fn check_packed(
 /// several row groups), up to 30 points (past one 24-point pass), point rows that overlap,
 /// touch or leave gaps, and `x`, `bias` and `out` that may be short.
 #[allow(clippy::type_complexity)]
-fn packed_shape(
+fn packed_shape<T: std::fmt::Debug, S: Strategy<Value = T> + Clone>(
+    values: S,
     k: std::ops::Range<usize>,
 ) -> impl Strategy<
     Value = (
-        Vec<i8>,
+        Vec<T>,
         usize,
         usize,
-        Vec<i8>,
+        Vec<T>,
         usize,
         usize,
         Vec<i32>,
@@ -767,7 +823,15 @@ fn packed_shape(
         (prop::bool::weighted(0.8), 0usize..5, 0usize..=200),
     )
         .prop_flat_map(
-            |(k, rows, points, (xs_kind, dxs), (whole_x, dx), (whole_b, db), (wide, ds, cut))| {
+            move |(
+                k,
+                rows,
+                points,
+                (xs_kind, dxs),
+                (whole_x, dx),
+                (whole_b, db),
+                (wide, ds, cut),
+            )| {
                 let x_stride = match xs_kind {
                     0 => k,
                     1 => k + dxs,
@@ -800,10 +864,10 @@ fn packed_shape(
                     out_full.saturating_sub(cut)
                 };
                 (
-                    prop::collection::vec(any_i8(), rows * k),
+                    prop::collection::vec(values.clone(), rows * k),
                     Just(rows),
                     Just(k),
-                    prop::collection::vec(any_i8(), x_len),
+                    prop::collection::vec(values.clone(), x_len),
                     Just(x_stride),
                     Just(points),
                     prop::collection::vec(near_limits_or_any(), b_len),
@@ -872,16 +936,25 @@ proptest! {
 
     #[test]
     fn i8_packed_kernels_match_reference(
-        (w, r, k, x, xs, p, b, n, s) in packed_shape(1..600)
+        (w, r, k, x, xs, p, b, n, s) in packed_shape(any_i8(), 1..600)
     ) {
         check_packed(&w, r, k, &x, xs, p, &b, n, s);
     }
 
     #[test]
     fn i8_packed_kernels_match_reference_small_k(
-        (w, r, k, x, xs, p, b, n, s) in packed_shape(1..20)
+        (w, r, k, x, xs, p, b, n, s) in packed_shape(any_i8(), 1..20)
     ) {
         // Every tail of the four-input step, and K below one step.
+        check_packed(&w, r, k, &x, xs, p, &b, n, s);
+    }
+
+    #[test]
+    fn i16_packed_kernels_match_reference(
+        (w, r, k, x, xs, p, b, n, s) in packed_shape(any_i16(), 1..40)
+    ) {
+        // The first layer's shapes (K = 5) and both tails of the two-input step; full-range
+        // values, so that pairs of (-32768)·(-32768) wrap.
         check_packed(&w, r, k, &x, xs, p, &b, n, s);
     }
 }
@@ -918,6 +991,19 @@ fn i8_packed_all_products_and_model_shapes() {
         for p in [1, 5, 16] {
             check_packed(&w, n, k, &x, 1536, p, &b, p * n, n);
         }
+    }
+}
+
+#[test]
+fn i16_packed_first_layer_shape_and_extremes() {
+    // The engine's first layer: 5 coded inputs, 8 apart, 64 rows, blocks of up to 30 points;
+    // every extreme pair.
+    let ext = [i16::MIN, i16::MIN + 1, -1, 0, 1, i16::MAX];
+    let w: Vec<i16> = (0..64 * 5).map(|i| ext[i * 7 % 6]).collect();
+    let x: Vec<i16> = (0..30 * 8).map(|i| ext[i * 5 % 6]).collect();
+    let b: Vec<i32> = (0..64).map(|i| i * 1001 - 30_000).collect();
+    for p in [1, 6, 7, 24, 30] {
+        check_packed(&w, 64, 5, &x, 8, p, &b, p * 64, 64);
     }
 }
 

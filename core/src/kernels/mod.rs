@@ -55,9 +55,11 @@
 //! Row-major weights cost the x86 kernels a horizontal sum per output. [`packed`] defines a
 //! second layout, made once from the blob's rows into a buffer the caller owns, in which the
 //! lanes of a register are 16 outputs: [`Kernels::matmat_packed_i8`] over it needs no
-//! horizontal sums and reads each point's inputs in place. The AVX-512 VNNI table has a native
-//! packed kernel ([`Kernels::has_packed`]); every other table runs the packed reference, so the
-//! packed engine ([`crate::infer::Plan::packed`]) works, and is tested, everywhere.
+//! horizontal sums and reads each point's inputs in place; [`Kernels::matmat_packed_i16`] does
+//! the same for the int16 first layer, whose five-input rows cost the row-major kernel more in
+//! horizontal sums than in products. The AVX-512 VNNI table has native packed kernels
+//! ([`Kernels::has_packed`]); every other table runs the packed references, so the packed
+//! engine ([`crate::infer::Plan::packed`]) works, and is tested, everywhere.
 //!
 //! # Between the kernels
 //!
@@ -75,7 +77,7 @@ pub mod reference;
 #[cfg(target_arch = "x86_64")]
 pub mod x86;
 
-pub use packed::{MatmatPackedI8, PackedI8};
+pub use packed::{MatmatPackedI16, MatmatPackedI8, PackedI16, PackedI8};
 
 /// The f32 kernel signature: `(w, x, bias, out)`, see [`reference::matvec_f32`].
 pub type MatvecF32 = fn(&[f32], &[f32], &[f32], &mut [f32]);
@@ -257,6 +259,7 @@ pub struct Kernels {
     i16: MatvecI16,
     i8mm: MatmatI8,
     i8pk: Option<MatmatPackedI8>,
+    i16pk: Option<MatmatPackedI16>,
     requant: RequantizeI8,
     pool: PoolI8,
     f32: MatvecF32,
@@ -272,6 +275,7 @@ impl Kernels {
             i16: reference_i16,
             i8mm: reference::matmat_i8,
             i8pk: None,
+            i16pk: None,
             requant: reference_requantize,
             pool: reference_pool,
             f32: reference::matvec_f32,
@@ -384,9 +388,9 @@ impl Kernels {
         (self.f32)(w, x, bias, out)
     }
 
-    /// Whether this table has a native kernel for [packed](mod@packed) weights (else
-    /// [`Kernels::matmat_packed_i8`] runs the reference, and the row-major
-    /// [`Kernels::matmat_i8`] is the faster choice).
+    /// Whether this table has native kernels for [packed](mod@packed) weights, int8 and int16
+    /// (else [`Kernels::matmat_packed_i8`] and [`Kernels::matmat_packed_i16`] run the
+    /// reference, and the row-major kernels are the faster choice).
     pub const fn has_packed(&self) -> bool {
         self.i8pk.is_some()
     }
@@ -408,6 +412,25 @@ impl Kernels {
         out_stride: usize,
     ) {
         let kernel = self.i8pk.unwrap_or(packed::matmat_packed_i8);
+        kernel(w, x, x_stride, points, bias, out, out_stride)
+    }
+
+    /// [`packed::matmat_packed_i16`], bit-exact, with this table's packed kernel (the reference
+    /// where it has none): [`Kernels::matmat_packed_i8`] for int16 weights and inputs (the
+    /// engine's first layer).
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    pub fn matmat_packed_i16(
+        &self,
+        w: &PackedI16<'_>,
+        x: &[i16],
+        x_stride: usize,
+        points: usize,
+        bias: &[i32],
+        out: &mut [i32],
+        out_stride: usize,
+    ) {
+        let kernel = self.i16pk.unwrap_or(packed::matmat_packed_i16);
         kernel(w, x, x_stride, points, bias, out, out_stride)
     }
 }

@@ -1,4 +1,5 @@
-//! Pre-packed int8 weights for the panel kernels, and the reference kernel that defines them.
+//! Pre-packed int8 and int16 weights for the panel kernels, and the reference kernels that
+//! define them.
 //!
 //! A blob stores a layer's weights as `[out][in]` rows: what a matrix-vector kernel wants, and
 //! what an MCU runs. A wide SIMD kernel wants something else: `vpdpbusd` multiplies 64 unsigned
@@ -8,81 +9,191 @@
 //! computes four inputs of 16 outputs for a point whose four input bytes are broadcast, and the
 //! sums land in the output's own lane: no horizontal sums, one contiguous store per 16 outputs.
 //! This is what oneDNN and onnxruntime do when they "pre-pack" weights at session creation; the
-//! host packs once per model load ([`PackedI8::pack`] into a buffer the caller owns).
+//! host packs once per model load ([`Packed::pack`] into a buffer the caller owns).
+//!
+//! The i16 first layer (the coded points, five inputs) gets the same layout with two inputs per
+//! lane, the pair `vpdpwssd`/`vpmaddwd` sums: [`PackedI16`]. Row-major, its five-input rows cost
+//! a matrix-vector kernel a horizontal sum per output, more than the products themselves.
 //!
 //! # Layout
 //!
-//! Rows are taken [`GROUP_ROWS`] (64) at a time; the inputs four at a time (a *step*). For row
-//! group `g` and step `s`, one block of [`BLOCK_BYTES`] (256) bytes holds, at byte
-//! `(o mod 64)·4 + r`, the weight of row `o = 64g + (o mod 64)` and input `j = 4s + r`, stored as
-//! the unsigned byte `w + 128` (`w ^ 0x80`), the operand `vpdpbusd` wants unsigned. Blocks are
-//! ordered by group, then step: a kernel streams a group's blocks front to back. Rows past the
-//! last and inputs past `K` are padding, stored as `w = 0`.
+//! Rows are taken [`GROUP_ROWS`] (64) at a time; the inputs [`Lane::STEP`] at a time (a
+//! *step*: four int8 or two int16 inputs, the four bytes of one 32-bit lane). For row group `g`
+//! and step `s`, one block of [`BLOCK_BYTES`] (256) bytes holds, at bytes
+//! `(o mod 64)·4 + r·size`, the weight of row `o = 64g + (o mod 64)` and input `j = STEP·s + r`.
+//! An int8 weight is stored as the unsigned byte `w + 128` (`w ^ 0x80`), the operand `vpdpbusd`
+//! wants unsigned; an int16 weight as itself, little-endian. Blocks are ordered by group, then
+//! step: a kernel streams a group's blocks front to back. Rows past the last and inputs past
+//! `K` are padding, stored as `w = 0`.
 //!
-//! With weights offset by 128, a kernel computes `Σ (w + 128)·x = Σ w·x + 128·Σ x` and subtracts
-//! `128·Σ x` once per point (shared by every row). Everything is exact modulo 2^32 (each group of
-//! four products is at most 4 · 255 · 128 < 2^31 in magnitude), the residue the reference's
-//! wrapping sums give.
+//! With int8 weights offset by 128, a kernel computes `Σ (w + 128)·x = Σ w·x + 128·Σ x` and
+//! subtracts `128·Σ x` once per point (shared by every row). Everything is exact modulo 2^32
+//! (each group of four products is at most 4 · 255 · 128 < 2^31 in magnitude), the residue the
+//! reference's wrapping sums give. An int16 pair sums into i32 exactly except
+//! (−32768)·(−32768)·2 = 2^31, which wraps to −2^31: again the residue modulo 2^32.
+
+use core::marker::PhantomData;
 
 /// Rows (outputs) per group: four 16-lane registers.
 pub const GROUP_ROWS: usize = 64;
 
-/// Inputs per step: the four bytes `vpdpbusd` sums into one lane.
-pub const STEP: usize = 4;
+/// Inputs per step of the int8 layout: the four bytes `vpdpbusd` sums into one lane.
+pub const STEP: usize = <i8 as Lane>::STEP;
+
+/// Bytes of one lane: one step of one row.
+pub const LANE_BYTES: usize = 4;
 
 /// Bytes of one block: one step of one row group.
-pub const BLOCK_BYTES: usize = GROUP_ROWS * STEP;
+pub const BLOCK_BYTES: usize = GROUP_ROWS * LANE_BYTES;
 
 /// One block of packed weights.
 pub type Block = [u8; BLOCK_BYTES];
 
-/// Bytes the packed form of a `rows × k` layer takes (whole blocks; 0 if either is 0), or
+/// A weight type the packed layout holds: `i8` (four inputs per lane, stored `w + 128`) or
+/// `i16` (two inputs per lane, stored as is). Sealed: the kernels know exactly these two.
+pub trait Lane: Copy + Default + Into<i32> + sealed::Sealed {
+    /// Inputs per lane (per step).
+    const STEP: usize;
+    /// Writes `self` as stored in a lane, into `size_of::<Self>()` bytes.
+    fn store(self, bytes: &mut [u8]);
+    /// Reads a weight back from its stored bytes.
+    fn load(bytes: &[u8]) -> Self;
+    /// A point's inputs of one step as the 32-bit lane value a kernel broadcasts: the inputs'
+    /// little-endian bytes, zero where `inputs` is short (the padding past `K`).
+    fn lane_bits(inputs: &[Self]) -> i32;
+}
+
+mod sealed {
+    pub trait Sealed {}
+    impl Sealed for i8 {}
+    impl Sealed for i16 {}
+}
+
+impl Lane for i8 {
+    const STEP: usize = 4;
+    #[inline]
+    fn store(self, bytes: &mut [u8]) {
+        if let Some(b) = bytes.first_mut() {
+            *b = self as u8 ^ 0x80;
+        }
+    }
+    #[inline]
+    fn load(bytes: &[u8]) -> Self {
+        bytes.first().map_or(0, |&b| (b ^ 0x80) as i8)
+    }
+    #[inline]
+    fn lane_bits(inputs: &[Self]) -> i32 {
+        let mut b = [0u8; 4];
+        for (d, &v) in b.iter_mut().zip(inputs) {
+            *d = v as u8;
+        }
+        i32::from_le_bytes(b)
+    }
+}
+
+impl Lane for i16 {
+    const STEP: usize = 2;
+    #[inline]
+    fn store(self, bytes: &mut [u8]) {
+        for (d, s) in bytes.iter_mut().zip(self.to_le_bytes()) {
+            *d = s;
+        }
+    }
+    #[inline]
+    fn load(bytes: &[u8]) -> Self {
+        match bytes {
+            [lo, hi, ..] => i16::from_le_bytes([*lo, *hi]),
+            _ => 0,
+        }
+    }
+    #[inline]
+    fn lane_bits(inputs: &[Self]) -> i32 {
+        let lo = inputs.first().map_or(0, |&v| v as u16 as u32);
+        let hi = inputs.get(1).map_or(0, |&v| v as u16 as u32);
+        (lo | hi << 16) as i32
+    }
+}
+
+/// Bytes the packed int8 form of a `rows × k` layer takes (whole blocks; 0 if either is 0), or
 /// `None` if that does not fit in a `usize`.
 pub const fn packed_len(rows: usize, k: usize) -> Option<usize> {
-    match rows.div_ceil(GROUP_ROWS).checked_mul(k.div_ceil(STEP)) {
+    packed_len_steps(rows, k, STEP)
+}
+
+/// [`packed_len`] for weights of type `T`.
+pub const fn packed_len_of<T: Lane>(rows: usize, k: usize) -> Option<usize> {
+    packed_len_steps(rows, k, T::STEP)
+}
+
+const fn packed_len_steps(rows: usize, k: usize, step: usize) -> Option<usize> {
+    match rows.div_ceil(GROUP_ROWS).checked_mul(k.div_ceil(step)) {
         Some(blocks) => blocks.checked_mul(BLOCK_BYTES),
         None => None,
     }
 }
 
-/// A layer's int8 weights in the packed layout (see the [module docs](self)), borrowed from a
-/// buffer the caller owns. Built by [`PackedI8::pack`], so its size always matches its shape.
-#[derive(Clone, Copy, Debug)]
-pub struct PackedI8<'a> {
+/// A layer's weights in the packed layout (see the [module docs](self)), borrowed from a
+/// buffer the caller owns. Built by [`Packed::pack`], so its size always matches its shape.
+#[derive(Debug)]
+pub struct Packed<'a, T> {
     blocks: &'a [Block],
     rows: usize,
     k: usize,
+    lane: PhantomData<T>,
 }
 
-impl<'a> PackedI8<'a> {
+impl<T> Clone for Packed<'_, T> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+
+impl<T> Copy for Packed<'_, T> {}
+
+/// A layer's int8 weights, packed.
+pub type PackedI8<'a> = Packed<'a, i8>;
+
+/// A layer's int16 weights (the first layer of an int8 model), packed.
+pub type PackedI16<'a> = Packed<'a, i16>;
+
+impl<'a, T: Lane> Packed<'a, T> {
     /// Packs the `[rows][k]` weights `w` into the front of `buf`, returning the packed view and
     /// the unused rest of `buf`. `None` if `rows == 0`, `k == 0`, `w.len() != rows · k`, or
     /// `buf` holds fewer than [`packed_len`]`(rows, k)` bytes.
-    pub fn pack(
-        w: &[i8],
-        rows: usize,
-        k: usize,
-        buf: &'a mut [u8],
-    ) -> Option<(Self, &'a mut [u8])> {
+    pub fn pack(w: &[T], rows: usize, k: usize, buf: &'a mut [u8]) -> Option<(Self, &'a mut [u8])> {
         if rows == 0 || k == 0 || rows.checked_mul(k) != Some(w.len()) {
             return None;
         }
-        let len = packed_len(rows, k).filter(|&len| len <= buf.len())?;
+        let len = packed_len_of::<T>(rows, k).filter(|&len| len <= buf.len())?;
         let (head, rest) = buf.split_at_mut(len);
         let (blocks, _) = head.as_chunks_mut::<BLOCK_BYTES>();
-        let steps = k.div_ceil(STEP);
+        let steps = k.div_ceil(T::STEP);
+        let size = LANE_BYTES / T::STEP;
         for (b, block) in blocks.iter_mut().enumerate() {
             let (g, s) = (b / steps, b % steps);
-            for (i, lane) in block.as_chunks_mut::<STEP>().0.iter_mut().enumerate() {
-                for (r, byte) in lane.iter_mut().enumerate() {
-                    let (o, j) = (g * GROUP_ROWS + i, s * STEP + r);
-                    let v = if o < rows && j < k { w[o * k + j] } else { 0 };
-                    *byte = v as u8 ^ 0x80;
+            for (i, lane) in block.as_chunks_mut::<LANE_BYTES>().0.iter_mut().enumerate() {
+                for (r, bytes) in lane.chunks_exact_mut(size).enumerate() {
+                    let (o, j) = (g * GROUP_ROWS + i, s * T::STEP + r);
+                    let v = if o < rows && j < k {
+                        w[o * k + j]
+                    } else {
+                        T::default()
+                    };
+                    v.store(bytes);
                 }
             }
         }
         let blocks: &'a [Block] = blocks;
-        Some((Self { blocks, rows, k }, rest))
+        Some((Self::new(blocks, rows, k), rest))
+    }
+
+    const fn new(blocks: &'a [Block], rows: usize, k: usize) -> Self {
+        Self {
+            blocks,
+            rows,
+            k,
+            lane: PhantomData,
+        }
     }
 
     /// Views bytes already packed by [`PackedI8::pack`] for a `rows × k` layer (e.g. kept in a
@@ -90,14 +201,14 @@ impl<'a> PackedI8<'a> {
     /// [`packed_len`]`(rows, k)` long. The bytes are not checked further: any bytes are some
     /// weights.
     pub fn from_packed(bytes: &'a [u8], rows: usize, k: usize) -> Option<Self> {
-        if k == 0 || rows == 0 || packed_len(rows, k) != Some(bytes.len()) {
+        if k == 0 || rows == 0 || packed_len_of::<T>(rows, k) != Some(bytes.len()) {
             return None;
         }
         let (blocks, _) = bytes.as_chunks::<BLOCK_BYTES>();
-        Some(Self { blocks, rows, k })
+        Some(Self::new(blocks, rows, k))
     }
 
-    /// Bytes of the packed form ([`packed_len`] of its shape).
+    /// Bytes of the packed form ([`packed_len_of`] its shape).
     pub const fn byte_len(&self) -> usize {
         self.blocks.len() * BLOCK_BYTES
     }
@@ -112,9 +223,10 @@ impl<'a> PackedI8<'a> {
         self.k
     }
 
-    /// Steps of [`STEP`] inputs per row group (the last one padded when `K` is not a multiple).
+    /// Steps of [`Lane::STEP`] inputs per row group (the last one padded when `K` is not a
+    /// multiple).
     pub const fn steps(&self) -> usize {
-        self.k.div_ceil(STEP)
+        self.k.div_ceil(T::STEP)
     }
 
     /// The blocks of row group `g` (`steps()` of them), or an empty slice past the last group.
@@ -129,17 +241,18 @@ impl<'a> PackedI8<'a> {
     }
 
     /// Weight of row `o`, input `j` (`0` outside the matrix), read back from the packed bytes.
-    pub fn weight(&self, o: usize, j: usize) -> i8 {
+    pub fn weight(&self, o: usize, j: usize) -> T {
         if o >= self.rows || j >= self.k {
-            return 0;
+            return T::default();
         }
-        let block = &self.group(o / GROUP_ROWS)[j / STEP];
-        (block[(o % GROUP_ROWS) * STEP + j % STEP] ^ 0x80) as i8
+        let size = LANE_BYTES / T::STEP;
+        let block = &self.group(o / GROUP_ROWS)[j / T::STEP];
+        T::load(&block[(o % GROUP_ROWS) * LANE_BYTES + (j % T::STEP) * size..])
     }
 }
 
 /// The packed int8 kernel's signature: `(w, x, x_stride, points, bias, out, out_stride)`,
-/// computing for `(P, O) =` [`packed_dims`]
+/// computing for `(P, O) =` [`packed_dims`] (and [`MatmatPackedI16`] the same for int16)
 ///
 /// `out[p·out_stride + o] = bias[o] + Σ_{j<K} w[o][j] · x[p·x_stride + j]` for `p < P`, `o < O`,
 ///
@@ -147,13 +260,16 @@ impl<'a> PackedI8<'a> {
 /// engine passes its activation rows in place, each layer's inputs a slice of a wider row).
 pub type MatmatPackedI8 = fn(&PackedI8<'_>, &[i8], usize, usize, &[i32], &mut [i32], usize);
 
+/// [`MatmatPackedI8`] for int16 weights and inputs.
+pub type MatmatPackedI16 = fn(&PackedI16<'_>, &[i16], usize, usize, &[i32], &mut [i32], usize);
+
 /// `(P, O)`, the points and rows a [`MatmatPackedI8`] kernel computes.
 ///
 /// `O = min(w.rows(), bias_len, out_stride)`. `P` is `points`, limited to the rows whose inputs
 /// lie inside `x` (`p·x_stride + K ≤ x_len`) and whose outputs lie inside `out`
 /// (`p·out_stride + O ≤ out_len`). `(0, 0)` when either is 0.
-pub const fn packed_dims(
-    w: &PackedI8<'_>,
+pub const fn packed_dims<T>(
+    w: &Packed<'_, T>,
     x_len: usize,
     x_stride: usize,
     points: usize,
@@ -193,6 +309,31 @@ pub fn matmat_packed_i8(
     out: &mut [i32],
     out_stride: usize,
 ) {
+    matmat_packed(w, x, x_stride, points, bias, out, out_stride)
+}
+
+/// The specification of [`MatmatPackedI16`]: plain scalar loops over the packed bytes.
+pub fn matmat_packed_i16(
+    w: &PackedI16<'_>,
+    x: &[i16],
+    x_stride: usize,
+    points: usize,
+    bias: &[i32],
+    out: &mut [i32],
+    out_stride: usize,
+) {
+    matmat_packed(w, x, x_stride, points, bias, out, out_stride)
+}
+
+fn matmat_packed<T: Lane>(
+    w: &Packed<'_, T>,
+    x: &[T],
+    x_stride: usize,
+    points: usize,
+    bias: &[i32],
+    out: &mut [i32],
+    out_stride: usize,
+) {
     let (points, rows) = packed_dims(
         w,
         x.len(),
@@ -210,7 +351,7 @@ pub fn matmat_packed_i8(
             .enumerate()
         {
             *y = x.iter().enumerate().fold(b, |acc, (j, &x)| {
-                acc.wrapping_add(i32::from(w.weight(o, j)) * i32::from(x))
+                acc.wrapping_add(w.weight(o, j).into().wrapping_mul(x.into()))
             });
         }
     }
@@ -276,6 +417,34 @@ mod tests {
             assert_eq!(out[pt * 72..][..70], want);
             assert_eq!(out[pt * 72 + 70..][..2], [-1, -1]);
         }
+    }
+
+    #[test]
+    fn i16_pack_round_trips_and_matches_the_row_major_matvec() {
+        let (rows, k) = (70, 5);
+        let w: [i16; 70 * 5] = core::array::from_fn(|i| (i as i32 * 7919 % 8191 - 4095) as i16);
+        let x: [i16; 3 * 8] = core::array::from_fn(|i| (i as i32 * 4099 % 8191 - 4095) as i16);
+        let bias: [i32; 70] = core::array::from_fn(|i| i as i32 * 1000 - 7);
+        let mut buf = [0u8; 2 * 3 * BLOCK_BYTES];
+        assert_eq!(packed_len_of::<i16>(rows, k), Some(buf.len()));
+        let (p, _) = PackedI16::pack(&w, rows, k, &mut buf).unwrap();
+        for o in 0..128 {
+            for j in 0..6 {
+                let want = if o < rows && j < k { w[o * k + j] } else { 0 };
+                assert_eq!(p.weight(o, j), want, "o {o} j {j}");
+            }
+        }
+        let mut out = [-1; 3 * 72];
+        matmat_packed_i16(&p, &x, 8, 3, &bias, &mut out, 72);
+        for pt in 0..3 {
+            let mut want = [0; 70];
+            super::super::reference::matvec_i16(&w, &x[pt * 8..][..k], &bias, &mut want);
+            assert_eq!(out[pt * 72..][..70], want);
+            assert_eq!(out[pt * 72 + 70..][..2], [-1, -1]);
+        }
+        assert_eq!(i16::lane_bits(&[-2, 3]), 0x0003_fffe);
+        assert_eq!(i16::lane_bits(&[-2]), 0x0000_fffe);
+        assert_eq!(i8::lane_bits(&[1, -1, 2]), 0x0002_ff01);
     }
 
     #[test]

@@ -51,7 +51,7 @@ use super::{rows, Isa, Kernels};
 mod packed;
 mod peak;
 
-pub use packed::matmat_packed_i8_avx512vnni;
+pub use packed::{matmat_packed_i16_avx512vnni, matmat_packed_i8_avx512vnni};
 pub use peak::peak_loop;
 
 /// The x86 features the kernels use, as reported by `cpuid` and enabled by the OS (`xgetbv`).
@@ -188,9 +188,12 @@ pub(super) const fn kernels(isa: Isa, features: Features) -> Option<Kernels> {
         Isa::X86Avx512Vnni => (avx512vnni_i8, avx512vnni_i16, avx512vnni_i8mm),
         _ => return None,
     };
-    let i8pk: Option<super::MatmatPackedI8> = match isa {
-        Isa::X86Avx512Vnni => Some(avx512vnni_i8pk),
-        _ => None,
+    let (i8pk, i16pk): (
+        Option<super::MatmatPackedI8>,
+        Option<super::MatmatPackedI16>,
+    ) = match isa {
+        Isa::X86Avx512Vnni => (Some(avx512vnni_i8pk), Some(avx512vnni_i16pk)),
+        _ => (None, None),
     };
     let (requant, pool, f32): (super::RequantizeI8, super::PoolI8, super::MatvecF32) = match isa {
         Isa::X86Avx2 | Isa::X86AvxVnni => (avx2_requant, avx2_pool, avx2_f32),
@@ -202,6 +205,7 @@ pub(super) const fn kernels(isa: Isa, features: Features) -> Option<Kernels> {
         i16,
         i8mm,
         i8pk,
+        i16pk,
         requant,
         pool,
         f32,
@@ -276,18 +280,28 @@ widened! {
         w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]);
 }
 
-/// The packed kernel behind the same kind of wrapper.
-fn avx512vnni_i8pk(
-    w: &super::PackedI8<'_>,
-    x: &[i8],
-    x_stride: usize,
-    points: usize,
-    bias: &[i32],
-    out: &mut [i32],
-    out_stride: usize,
-) {
-    // SAFETY: as for `checked!`: only reachable through a `Kernels` whose ISA the CPU supports.
-    unsafe { matmat_packed_i8_avx512vnni(w, x, x_stride, points, bias, out, out_stride) }
+/// The packed kernels behind the same kind of wrapper.
+macro_rules! checked_pk {
+    ($($name:ident => $kernel:ident($t:ty, $w:ty);)*) => {$(
+        fn $name(
+            w: &$w,
+            x: &[$t],
+            x_stride: usize,
+            points: usize,
+            bias: &[i32],
+            out: &mut [i32],
+            out_stride: usize,
+        ) {
+            // SAFETY: as for `checked!`: only reachable through a `Kernels` whose ISA the CPU
+            // supports.
+            unsafe { $kernel(w, x, x_stride, points, bias, out, out_stride) }
+        }
+    )*};
+}
+
+checked_pk! {
+    avx512vnni_i8pk => matmat_packed_i8_avx512vnni(i8, super::PackedI8<'_>);
+    avx512vnni_i16pk => matmat_packed_i16_avx512vnni(i16, super::PackedI16<'_>);
 }
 
 checked_mm! {

@@ -55,8 +55,8 @@ impl<T> Logits<T> {
 /// A parsed model with its kernels, packed weights and scratch memory, ready to run repeatedly
 /// (parsing checks the whole blob's CRC, so it happens once, at load).
 ///
-/// For an int8 model on a CPU with a native packed kernel ([`Kernels::has_packed`]), the point
-/// layers' weights are packed once per blob ([`AlignedBlob::packed`]), as onnxruntime pre-packs
+/// For an int8 model on a CPU with native packed kernels ([`Kernels::has_packed`]), the point
+/// layers' weights (the int16 first layer's too) are packed once per blob ([`AlignedBlob::packed`]), as onnxruntime pre-packs
 /// at session creation. [`CoreRunner::plan`] plans an inference over them (a few hundred
 /// nanoseconds: a plan borrows the model and is rebuilt per call).
 pub struct CoreRunner<'b> {

@@ -1,4 +1,5 @@
-//! The AVX-512 VNNI kernel over pre-packed weights ([`crate::kernels::packed`]).
+//! The AVX-512 VNNI kernels over pre-packed weights ([`crate::kernels::packed`]): int8
+//! (`vpdpbusd`, four inputs per lane) and int16 (`vpdpwssd`, two), one loop for both.
 //!
 //! A register tile is one row group (64 outputs, four registers of 16 lanes) by up to
 //! [`TILE_POINTS`] points: 24 accumulators, 4 weight registers, and each point's four input
@@ -18,7 +19,7 @@
 use core::arch::x86_64::*;
 
 use super::vnni_correction;
-use crate::kernels::packed::{packed_dims, Block, PackedI8, GROUP_ROWS, STEP};
+use crate::kernels::packed::{packed_dims, Block, Lane, Packed, PackedI16, PackedI8, GROUP_ROWS};
 
 /// Points per register tile.
 pub const TILE_POINTS: usize = 6;
@@ -44,6 +45,63 @@ pub unsafe fn matmat_packed_i8_avx512vnni(
     out: &mut [i32],
     out_stride: usize,
 ) {
+    tiles::<i8, 4>(w, x, x_stride, points, bias, out, out_stride)
+}
+
+/// [`crate::kernels::packed::matmat_packed_i16`], bit-exact, with `vpdpwssd` on 512-bit
+/// registers.
+///
+/// # Safety
+/// The CPU must support AVX2, AVX-512F/BW/VL and AVX-512 VNNI.
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+pub unsafe fn matmat_packed_i16_avx512vnni(
+    w: &PackedI16<'_>,
+    x: &[i16],
+    x_stride: usize,
+    points: usize,
+    bias: &[i32],
+    out: &mut [i32],
+    out_stride: usize,
+) {
+    tiles::<i16, 2>(w, x, x_stride, points, bias, out, out_stride)
+}
+
+/// What the loop needs to know of a weight type beyond its [`Lane`] layout.
+trait Vnni: Lane {
+    /// Whether a step is a pair of i16 (`vpdpwssd`) rather than four u8 × i8 (`vpdpbusd`).
+    const WORDS: bool;
+    /// What to subtract from each of a point's sums: `128·Σx` for int8 (the weights' offset),
+    /// 0 for int16.
+    fn correction(x: &[Self]) -> i32;
+}
+
+impl Vnni for i8 {
+    const WORDS: bool = false;
+    fn correction(x: &[i8]) -> i32 {
+        vnni_correction(x)
+    }
+}
+
+impl Vnni for i16 {
+    const WORDS: bool = true;
+    fn correction(_: &[i16]) -> i32 {
+        0
+    }
+}
+
+/// Both kernels: tiles of points, each through every row group. `S` is `T::STEP`.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+fn tiles<T: Vnni, const S: usize>(
+    w: &Packed<'_, T>,
+    x: &[T],
+    x_stride: usize,
+    points: usize,
+    bias: &[i32],
+    out: &mut [i32],
+    out_stride: usize,
+) {
     let (points, rows) = packed_dims(
         w,
         x.len(),
@@ -59,7 +117,7 @@ pub unsafe fn matmat_packed_i8_avx512vnni(
         let m = (points - first).min(TILE_POINTS);
         let mut corr = [0i32; TILE_POINTS];
         for (c, p) in corr.iter_mut().zip(first..first + m) {
-            *c = vnni_correction(&x[p * x_stride..][..k]);
+            *c = T::correction(&x[p * x_stride..][..k]);
         }
         for g in 0..rows.div_ceil(GROUP_ROWS) {
             let row0 = g * GROUP_ROWS;
@@ -72,12 +130,12 @@ pub unsafe fn matmat_packed_i8_avx512vnni(
             };
             let io = (x, x_stride, first, &corr[..m], &mut *out, out_stride);
             match m {
-                1 => tile.run::<1>(io),
-                2 => tile.run::<2>(io),
-                3 => tile.run::<3>(io),
-                4 => tile.run::<4>(io),
-                5 => tile.run::<5>(io),
-                _ => tile.run::<6>(io),
+                1 => tile.run::<1, S, T>(io),
+                2 => tile.run::<2, S, T>(io),
+                3 => tile.run::<3, S, T>(io),
+                4 => tile.run::<4, S, T>(io),
+                5 => tile.run::<5, S, T>(io),
+                _ => tile.run::<6, S, T>(io),
             }
         }
         first += m;
@@ -99,19 +157,23 @@ struct Tile<'a> {
 }
 
 /// A tile's points: `(x, x_stride, first point, corrections, out, out_stride)`.
-type TileIo<'a, 'b> = (&'a [i8], usize, usize, &'a [i32], &'b mut [i32], usize);
+type TileIo<'a, 'b, T> = (&'a [T], usize, usize, &'a [i32], &'b mut [i32], usize);
 
 impl Tile<'_> {
-    /// `NP` points (rows `p..p + NP` of `x`) through the group; `corr` holds their `128·Σx`.
+    /// `NP` points (rows `p..p + NP` of `x`) through the group, `S` inputs per step; `corr`
+    /// holds what to subtract from each point's sums.
     #[inline]
     #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
-    fn run<const NP: usize>(&self, (x, x_stride, p, corr, out, out_stride): TileIo<'_, '_>) {
-        let full = self.k / STEP;
+    fn run<const NP: usize, const S: usize, T: Vnni>(
+        &self,
+        (x, x_stride, p, corr, out, out_stride): TileIo<'_, '_, T>,
+    ) {
+        let full = self.k / S;
         // Plain loops, not `array::from_fn` (an out-of-line call that hides the lengths): with
         // every `steps[i]` sliced to `full`, the compiler keeps one bounds check per step of the
         // loop below instead of one per point.
-        let mut rows: [&[i8]; NP] = [&[]; NP];
-        let mut steps: [&[[i8; STEP]]; NP] = [&[]; NP];
+        let mut rows: [&[T]; NP] = [&[]; NP];
+        let mut steps: [&[[T; S]]; NP] = [&[]; NP];
         for (i, (row, st)) in rows.iter_mut().zip(&mut steps).enumerate() {
             *row = &x[(p + i) * x_stride..][..self.k];
             *st = &row.as_chunks().0[..full];
@@ -121,18 +183,14 @@ impl Tile<'_> {
         for (s, block) in blocks.iter().enumerate() {
             let wv = load_block(block);
             for (a, xs) in acc.iter_mut().zip(&steps) {
-                mac(a, &wv, xs[s].map(|b| b as u8));
+                mac::<T>(a, &wv, T::lane_bits(&xs[s]));
             }
         }
         if let Some(block) = tail.first() {
-            // K is not a multiple of four: the last step's missing inputs count as zero.
+            // K is not a multiple of the step: the last step's missing inputs count as zero.
             let wv = load_block(block);
             for (a, row) in acc.iter_mut().zip(&rows) {
-                let mut d = [0u8; STEP];
-                for (d, &b) in d.iter_mut().zip(&row[full * STEP..]) {
-                    *d = b as u8;
-                }
-                mac(a, &wv, d);
+                mac::<T>(a, &wv, T::lane_bits(&row[full * S..]));
             }
         }
         for (i, (a, &c)) in acc.iter().zip(corr).enumerate() {
@@ -150,14 +208,19 @@ impl Tile<'_> {
     }
 }
 
-/// One point's four input bytes, broadcast, times one block: `vpdpbusd` into each of the
-/// point's four accumulators (16 outputs × 4 inputs each).
+/// One point's step of inputs (the lane's four bytes), broadcast, times one block:
+/// `vpdpbusd` (int8) or `vpdpwssd` (int16) into each of the point's four accumulators (16
+/// outputs × one step each).
 #[inline]
 #[target_feature(enable = "avx512f,avx512vnni")]
-fn mac(acc: &mut [__m512i; REGS], w: &[__m512i; REGS], inputs: [u8; STEP]) {
-    let v = _mm512_set1_epi32(i32::from_le_bytes(inputs));
+fn mac<T: Vnni>(acc: &mut [__m512i; REGS], w: &[__m512i; REGS], inputs: i32) {
+    let v = _mm512_set1_epi32(inputs);
     for (a, &w) in acc.iter_mut().zip(w) {
-        *a = _mm512_dpbusd_epi32(*a, w, v);
+        *a = if T::WORDS {
+            _mm512_dpwssd_epi32(*a, w, v)
+        } else {
+            _mm512_dpbusd_epi32(*a, w, v)
+        };
     }
 }
 
