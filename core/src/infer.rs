@@ -195,7 +195,10 @@ const F32_TILE_WEIGHTS: usize = 4096;
 pub struct Plan<'m> {
     model: &'m Model<'m>,
     kernels: Kernels,
-    packed: Option<&'m PackedWeights<'m>>,
+    /// The packed weights and the function that runs a packed layer: set by [`Plan::packed`]
+    /// only, so that an image which never plans packed weights (an MCU's) links no packed
+    /// kernel.
+    packed: Option<(&'m PackedWeights<'m>, PackedLayerFn)>,
     block: usize,
     /// Scratch words `block` needs.
     scratch: usize,
@@ -229,9 +232,15 @@ impl<'m> Plan<'m> {
         if packed.checksum != model.checksum() {
             return Err(InferError::PackedModel);
         }
-        Self::build(model, kernels, Some(packed), scratch_words)
+        let mut plan = Self::build(model, kernels, Some(packed), scratch_words)?;
+        // Set here, not passed to `build`: with both constructors passing the function to
+        // `build`, LLVM's interprocedural constant propagation gave `Plan::new`'s unset payload
+        // the same address, and an image that only calls `Plan::new` linked the packed kernels.
+        plan.packed = Some((packed, run_packed_layer));
+        Ok(plan)
     }
 
+    /// The plan without packed weights, after checking `packed` (if any) against the model.
     fn build(
         model: &'m Model<'m>,
         kernels: Kernels,
@@ -282,7 +291,7 @@ impl<'m> Plan<'m> {
         Ok(Self {
             model,
             kernels,
-            packed,
+            packed: None,
             block,
             scratch: scratch_words_for_block(model, block),
             acts_len,
@@ -506,22 +515,23 @@ impl<'m> Plan<'m> {
                 };
                 let (k_in, out_dim) = (l.desc.in_dim as usize, l.desc.out_dim as usize);
                 let acc = &mut acc[..n * out_dim];
-                let packed = self.packed.and_then(|p| p.layers[i]);
+                let packed = self.packed.and_then(|(p, run)| Some((p.layers[i]?, run)));
                 match (l.weights, packed) {
-                    // The coded points, 8 i16 apart, through the packed first layer.
-                    (Weights::I16(_), Some(PackedLayer::I16(w))) => {
-                        k.matmat_packed_i16(&w, &inputs[..n * 8], 8, n, bias, acc, out_dim);
+                    // The coded points (8 i16 apart) or the sources, a contiguous run of each
+                    // point's activation row (read in place, rows `acts_len` apart).
+                    (weights, Some((layer, run))) => {
+                        // (The first layer's sources are the coded points, not activations.)
+                        let src = match weights {
+                            Weights::I8(_) => source_range(l.desc.sources, offs).start,
+                            _ => 0,
+                        };
+                        let inputs = (&inputs[..n * 8], acts.get(src..).unwrap_or_default());
+                        run(k, layer, inputs, acts_len, n, bias, acc, out_dim);
                     }
-                    (Weights::I16(w), _) => {
+                    (Weights::I16(w), None) => {
                         for (x, acc) in inputs.chunks_exact(8).zip(acc.chunks_exact_mut(out_dim)) {
                             k.matvec_i16(w, &x[..FEATURES], bias, acc);
                         }
-                    }
-                    // The sources are a contiguous run of each point's activation row: read
-                    // them in place, rows `acts_len` apart.
-                    (Weights::I8(_), Some(PackedLayer::I8(w))) => {
-                        let src = source_range(l.desc.sources, offs);
-                        k.matmat_packed_i8(&w, &acts[src.start..], acts_len, n, bias, acc, out_dim);
                     }
                     // One point (an MCU's block): read the sources in place, no copy.
                     (Weights::I8(w), None) if n == 1 => {
@@ -540,11 +550,7 @@ impl<'m> Plan<'m> {
                         }
                         k.matmat_i8(w, k_in, &gathered[..n * k_in], bias, acc, out_dim);
                     }
-                    // Ruled out by the plan.
-                    (Weights::I8(_), Some(PackedLayer::I16(_))) => {
-                        return Err(InferError::PackedModel)
-                    }
-                    (Weights::F32(_), _) => return Err(InferError::DType),
+                    (Weights::F32(_), None) => return Err(InferError::DType),
                 }
                 let requant = Requant {
                     scales: l.scales,
@@ -687,8 +693,8 @@ pub fn packed_bytes(model: &Model<'_>) -> usize {
 /// [`crate::kernels::packed`]) in the caller's buffer. Small and `Copy`: keep it next to the buffer,
 /// and get the weights back for [`Plan::packed`] with [`PackedLayout::weights`].
 ///
-/// Packing is for CPUs with a native packed kernel ([`Kernels::has_packed`]: x86 AVX-512
-/// VNNI). It doubles the point layers' weight memory, so an MCU runs the blob's row-major
+/// Packing is for CPUs with native packed kernels ([`Kernels::has_packed`]: x86 AVX-512
+/// VNNI and AVX-VNNI). It doubles the point layers' weight memory, so an MCU runs the blob's row-major
 /// weights in place with [`Plan::run_i8`] instead.
 #[derive(Clone, Copy, Debug)]
 pub struct PackedLayout {
@@ -757,6 +763,30 @@ pub struct PackedWeights<'b> {
 enum PackedLayer<'b> {
     I8(PackedI8<'b>),
     I16(PackedI16<'b>),
+}
+
+/// [`run_packed_layer`]'s type.
+type PackedLayerFn =
+    fn(&Kernels, PackedLayer<'_>, (&[i16], &[i8]), usize, usize, &[i32], &mut [i32], usize);
+
+/// One packed point layer for a block of `n` points: the int16 first layer over the coded
+/// points (`inputs.0`, 8 apart), an int8 layer over the activation rows from its sources on
+/// (`inputs.1`, `acts_len` apart); outputs `out_dim` apart in `acc`.
+#[allow(clippy::too_many_arguments)]
+fn run_packed_layer(
+    k: &Kernels,
+    layer: PackedLayer<'_>,
+    (coded, acts): (&[i16], &[i8]),
+    acts_len: usize,
+    n: usize,
+    bias: &[i32],
+    acc: &mut [i32],
+    out_dim: usize,
+) {
+    match layer {
+        PackedLayer::I16(w) => k.matmat_packed_i16(&w, coded, 8, n, bias, acc, out_dim),
+        PackedLayer::I8(w) => k.matmat_packed_i8(&w, acts, acts_len, n, bias, acc, out_dim),
+    }
 }
 
 /// Packs `model`'s int8 point layers and its int16 first layer into `buf` (at least

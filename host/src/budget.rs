@@ -79,8 +79,9 @@ pub struct ModelBudget {
     /// Scratch words of the blob's engine in blocks of `MAX_BLOCK` points (what the host lends:
     /// fewer passes over the weights); `scratch_words` is the one-point minimum an MCU lends.
     pub block_scratch_words: usize,
-    /// Bytes of the packed copy of the point layers' weights that a host with a native packed
-    /// kernel (x86 AVX-512 VNNI) makes at load (`evpose_core::packed_bytes`); 0 for f32.
+    /// Bytes of the packed copy of the point layers' weights that a host with native packed
+    /// kernels (x86 AVX-512 VNNI, AVX-VNNI) makes at load (`evpose_core::packed_bytes`); 0 for
+    /// f32.
     pub packed_bytes: usize,
 }
 

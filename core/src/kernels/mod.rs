@@ -57,9 +57,13 @@
 //! lanes of a register are 16 outputs: [`Kernels::matmat_packed_i8`] over it needs no
 //! horizontal sums and reads each point's inputs in place; [`Kernels::matmat_packed_i16`] does
 //! the same for the int16 first layer, whose five-input rows cost the row-major kernel more in
-//! horizontal sums than in products. The AVX-512 VNNI table has native packed kernels
-//! ([`Kernels::has_packed`]); every other table runs the packed references, so the packed
-//! engine ([`crate::infer::Plan::packed`]) works, and is tested, everywhere.
+//! horizontal sums than in products. The AVX-512 VNNI and AVX-VNNI tables have native packed
+//! kernels ([`Kernels::has_packed`]); every other table runs the packed references, so the
+//! packed engine ([`crate::infer::Plan::packed`]) works, and is tested, everywhere.
+//!
+//! The f32 and packed kernels are not stored in the table: [`Kernels::matvec_f32`] and the
+//! packed calls pick them from the table's [`Isa`] where they are called. An image that never
+//! runs the f32 engine, or never plans packed weights (an int8 firmware), links neither.
 //!
 //! # Between the kernels
 //!
@@ -258,11 +262,8 @@ pub struct Kernels {
     i8: MatvecI8,
     i16: MatvecI16,
     i8mm: MatmatI8,
-    i8pk: Option<MatmatPackedI8>,
-    i16pk: Option<MatmatPackedI16>,
     requant: RequantizeI8,
     pool: PoolI8,
-    f32: MatvecF32,
 }
 
 impl Kernels {
@@ -274,11 +275,8 @@ impl Kernels {
             i8: reference_i8,
             i16: reference_i16,
             i8mm: reference::matmat_i8,
-            i8pk: None,
-            i16pk: None,
             requant: reference_requantize,
             pool: reference_pool,
-            f32: reference::matvec_f32,
         }
     }
 
@@ -385,14 +383,34 @@ impl Kernels {
     /// engine's kernel).
     #[inline]
     pub fn matvec_f32(&self, w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]) {
-        (self.f32)(w, x, bias, out)
+        // Chosen here from the ISA, not stored in the table: an image that never runs the f32
+        // engine (an int8 firmware) then links no f32 kernel.
+        #[cfg(target_arch = "x86_64")]
+        if let Some(f) = x86::f32_kernel(self.isa) {
+            return f(w, x, bias, out);
+        }
+        reference::matvec_f32(w, x, bias, out)
     }
 
     /// Whether this table has native kernels for [packed](mod@packed) weights, int8 and int16
     /// (else [`Kernels::matmat_packed_i8`] and [`Kernels::matmat_packed_i16`] run the
     /// reference, and the row-major kernels are the faster choice).
-    pub const fn has_packed(&self) -> bool {
-        self.i8pk.is_some()
+    pub fn has_packed(&self) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        if x86::packed_kernels(self.isa).is_some() {
+            return true;
+        }
+        false
+    }
+
+    /// The native packed kernels of this table's ISA. Chosen from the ISA at the call, not
+    /// stored in the table, so that only an image that runs packed weights links them.
+    fn packed_kernels(&self) -> Option<(MatmatPackedI8, MatmatPackedI16)> {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(k) = x86::packed_kernels(self.isa) {
+            return Some(k);
+        }
+        None
     }
 
     /// [`packed::matmat_packed_i8`], bit-exact, with this table's packed kernel (the reference
@@ -411,7 +429,9 @@ impl Kernels {
         out: &mut [i32],
         out_stride: usize,
     ) {
-        let kernel = self.i8pk.unwrap_or(packed::matmat_packed_i8);
+        let kernel = self
+            .packed_kernels()
+            .map_or(packed::matmat_packed_i8 as MatmatPackedI8, |k| k.0);
         kernel(w, x, x_stride, points, bias, out, out_stride)
     }
 
@@ -430,7 +450,9 @@ impl Kernels {
         out: &mut [i32],
         out_stride: usize,
     ) {
-        let kernel = self.i16pk.unwrap_or(packed::matmat_packed_i16);
+        let kernel = self
+            .packed_kernels()
+            .map_or(packed::matmat_packed_i16 as MatmatPackedI16, |k| k.1);
         kernel(w, x, x_stride, points, bias, out, out_stride)
     }
 }

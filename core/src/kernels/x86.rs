@@ -32,10 +32,11 @@
 //! is computed once per point. The 4 × 4 blocks of 512-bit sums are reduced by one shuffle tree
 //! (`hsum16_512`).
 //!
-//! The packed kernel (`x86/packed.rs`, [`matmat_packed_i8_avx512vnni`]) needs neither the
+//! The packed kernels (`x86/packed.rs`: [`matmat_packed_i8_avx512vnni`] and
+//! [`matmat_packed_i8_avxvnni`], and their int16 twins for the first layer) need neither the
 //! shuffle tree nor the per-call correction of the weights: the weights are packed as `w + 128`
-//! with 16 outputs across the lanes, the points' inputs are the signed operand, broadcast four
-//! bytes at a time, and `128·Σx` is subtracted once per point.
+//! with 16 (or 8) outputs across the lanes, the points' inputs are the signed operand,
+//! broadcast four bytes at a time, and `128·Σx` is subtracted once per point.
 //!
 //! The `unsafe fn`s are public for callers that do their own feature checks; safe code gets them
 //! through [`super::Kernels`], which hands out only kernels the CPU supports.
@@ -51,7 +52,10 @@ use super::{rows, Isa, Kernels};
 mod packed;
 mod peak;
 
-pub use packed::{matmat_packed_i16_avx512vnni, matmat_packed_i8_avx512vnni};
+pub use packed::{
+    matmat_packed_i16_avx512vnni, matmat_packed_i16_avxvnni, matmat_packed_i8_avx512vnni,
+    matmat_packed_i8_avxvnni,
+};
 pub use peak::peak_loop;
 
 /// The x86 features the kernels use, as reported by `cpuid` and enabled by the OS (`xgetbv`).
@@ -188,28 +192,40 @@ pub(super) const fn kernels(isa: Isa, features: Features) -> Option<Kernels> {
         Isa::X86Avx512Vnni => (avx512vnni_i8, avx512vnni_i16, avx512vnni_i8mm),
         _ => return None,
     };
-    let (i8pk, i16pk): (
-        Option<super::MatmatPackedI8>,
-        Option<super::MatmatPackedI16>,
-    ) = match isa {
-        Isa::X86Avx512Vnni => (Some(avx512vnni_i8pk), Some(avx512vnni_i16pk)),
-        _ => (None, None),
-    };
-    let (requant, pool, f32): (super::RequantizeI8, super::PoolI8, super::MatvecF32) = match isa {
-        Isa::X86Avx2 | Isa::X86AvxVnni => (avx2_requant, avx2_pool, avx2_f32),
-        _ => (avx512_requant, avx512_pool, avx512_f32),
+    let (requant, pool): (super::RequantizeI8, super::PoolI8) = match isa {
+        Isa::X86Avx2 | Isa::X86AvxVnni => (avx2_requant, avx2_pool),
+        _ => (avx512_requant, avx512_pool),
     };
     Some(Kernels {
         isa,
         i8,
         i16,
         i8mm,
-        i8pk,
-        i16pk,
         requant,
         pool,
-        f32,
     })
+}
+
+/// The f32 kernel of an x86 table's ISA (`None` for other ISAs).
+///
+/// Invariant: `isa` is the ISA of a [`Kernels`], which [`kernels`] made only after checking
+/// that the CPU supports it, so the wrappers' features are there.
+pub(super) fn f32_kernel(isa: Isa) -> Option<super::MatvecF32> {
+    match isa {
+        Isa::X86Avx2 | Isa::X86AvxVnni => Some(avx2_f32),
+        Isa::X86Avx512Bw | Isa::X86Avx512Vnni => Some(avx512_f32),
+        _ => None,
+    }
+}
+
+/// The native packed kernels (int8, int16) of an x86 table's ISA, if it has them; the same
+/// invariant as [`f32_kernel`].
+pub(super) fn packed_kernels(isa: Isa) -> Option<(super::MatmatPackedI8, super::MatmatPackedI16)> {
+    match isa {
+        Isa::X86Avx512Vnni => Some((avx512vnni_i8pk, avx512vnni_i16pk)),
+        Isa::X86AvxVnni => Some((avxvnni_i8pk, avxvnni_i16pk)),
+        _ => None,
+    }
 }
 
 /// Safe wrappers with the reference's signature, for [`Kernels`]' function pointers.
@@ -302,6 +318,8 @@ macro_rules! checked_pk {
 checked_pk! {
     avx512vnni_i8pk => matmat_packed_i8_avx512vnni(i8, super::PackedI8<'_>);
     avx512vnni_i16pk => matmat_packed_i16_avx512vnni(i16, super::PackedI16<'_>);
+    avxvnni_i8pk => matmat_packed_i8_avxvnni(i8, super::PackedI8<'_>);
+    avxvnni_i16pk => matmat_packed_i16_avxvnni(i16, super::PackedI16<'_>);
 }
 
 checked_mm! {

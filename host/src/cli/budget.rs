@@ -111,7 +111,7 @@ fn print_model(path: &Path, m: &ModelBudget) {
     );
     println!(
         "host: scratch {} words ({} bytes) for blocks of {} points; packed weights {} bytes \
-         (x86 with AVX-512 VNNI)",
+         (x86 with AVX-512 VNNI or AVX-VNNI)",
         m.block_scratch_words,
         4 * m.block_scratch_words,
         evpose_core::infer::MAX_BLOCK,

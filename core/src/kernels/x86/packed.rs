@@ -1,20 +1,27 @@
-//! The AVX-512 VNNI kernels over pre-packed weights ([`crate::kernels::packed`]): int8
-//! (`vpdpbusd`, four inputs per lane) and int16 (`vpdpwssd`, two), one loop for both.
+//! The kernels over pre-packed weights ([`crate::kernels::packed`]): int8 (`vpdpbusd`, four
+//! inputs per lane) and int16 (`vpdpwssd`, two), on 512-bit registers (AVX-512 VNNI) and on
+//! 256-bit ones (AVX-VNNI, for the CPUs that have it without AVX-512). One loop for all four,
+//! written once ([`packed_loop!`]) and compiled per register width with that width's target
+//! features.
 //!
-//! A register tile is one row group (64 outputs, four registers of 16 lanes) by up to
-//! [`TILE_POINTS`] points: 24 accumulators, 4 weight registers, and each point's four input
-//! bytes broadcast from memory. Per step of four inputs that is 4 weight loads and 6 broadcasts
-//! for 24 `vpdpbusd` (1,536 MACs), with no horizontal sums: lane `i` of accumulator `q` is
-//! output `16q + i` of the group, stored as is.
+//! A register tile is a slice of a row group (64 outputs) by up to [`TILE_POINTS`] points:
+//!
+//! | width | slice | accumulators | weight registers | per step of one slice |
+//! |---|---|---|---|---|
+//! | 512-bit | 64 rows, 4 registers of 16 lanes | 24 | 4 | 4 weight loads, 6 broadcasts, 24 `vpdpbusd` (1,536 MACs) |
+//! | 256-bit | 16 rows, 2 registers of 8 lanes (16 registers in all) | 12 | 2 | 2 weight loads, 6 broadcasts, 12 `vpdpbusd` (384 MACs) |
+//!
+//! No horizontal sums: lane `i` of accumulator `q` is output `LANES·q + i` of the slice, stored
+//! as is. Each point's step of inputs (four bytes) is broadcast from memory.
 //!
 //! Tiles are the outer loop: one tile's points run through every row group, so a layer's
 //! weights stream through once per six points (from L2 for the paper's 512 KiB conv5) while
-//! the points' inputs stay in L1, and `128·Σx` (the correction for the weights' `+128` offset)
-//! is computed once per point. On this project's Zen 5 VM, conv5 in blocks of 16 points runs
-//! at 495 GMAC/s this way (`benches/kernels.rs`, `packed/avx512vnni`), 94 % of the 524 GMAC/s
-//! `kernels::peak_loop` measures; the other order, each row group's 32 KiB kept in L1 while
-//! every tile passes over it, measured about 340 GMAC/s with four-point tiles (a timing loop,
-//! on the same machine while it was busy).
+//! the points' inputs stay in L1, and `128·Σx` (the correction for the int8 weights' `+128`
+//! offset) is computed once per point. On this project's Zen 5 VM, conv5 in blocks of 16 points
+//! runs at 495 GMAC/s this way (`benches/kernels.rs`, `packed/avx512vnni`), 94 % of the 524
+//! GMAC/s `kernels::peak_loop` measures; the other order, each row group's 32 KiB kept in L1
+//! while every tile passes over it, measured about 340 GMAC/s with four-point tiles (a timing
+//! loop, on the same machine while it was busy).
 
 use core::arch::x86_64::*;
 
@@ -23,48 +30,6 @@ use crate::kernels::packed::{packed_dims, Block, Lane, Packed, PackedI16, Packed
 
 /// Points per register tile.
 pub const TILE_POINTS: usize = 6;
-
-/// Lanes per register (i32).
-const LANES: usize = 16;
-
-/// Registers per row group.
-const REGS: usize = GROUP_ROWS / LANES;
-
-/// [`crate::kernels::packed::matmat_packed_i8`], bit-exact, with `vpdpbusd` on 512-bit
-/// registers.
-///
-/// # Safety
-/// The CPU must support AVX2, AVX-512F/BW/VL and AVX-512 VNNI.
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
-pub unsafe fn matmat_packed_i8_avx512vnni(
-    w: &PackedI8<'_>,
-    x: &[i8],
-    x_stride: usize,
-    points: usize,
-    bias: &[i32],
-    out: &mut [i32],
-    out_stride: usize,
-) {
-    tiles::<i8, 4>(w, x, x_stride, points, bias, out, out_stride)
-}
-
-/// [`crate::kernels::packed::matmat_packed_i16`], bit-exact, with `vpdpwssd` on 512-bit
-/// registers.
-///
-/// # Safety
-/// The CPU must support AVX2, AVX-512F/BW/VL and AVX-512 VNNI.
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
-pub unsafe fn matmat_packed_i16_avx512vnni(
-    w: &PackedI16<'_>,
-    x: &[i16],
-    x_stride: usize,
-    points: usize,
-    bias: &[i32],
-    out: &mut [i32],
-    out_stride: usize,
-) {
-    tiles::<i16, 2>(w, x, x_stride, points, bias, out, out_stride)
-}
 
 /// What the loop needs to know of a weight type beyond its [`Lane`] layout.
 trait Vnni: Lane {
@@ -89,62 +54,12 @@ impl Vnni for i16 {
     }
 }
 
-/// Both kernels: tiles of points, each through every row group. `S` is `T::STEP`.
-#[allow(clippy::too_many_arguments)]
-#[inline]
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
-fn tiles<T: Vnni, const S: usize>(
-    w: &Packed<'_, T>,
-    x: &[T],
-    x_stride: usize,
-    points: usize,
-    bias: &[i32],
-    out: &mut [i32],
-    out_stride: usize,
-) {
-    let (points, rows) = packed_dims(
-        w,
-        x.len(),
-        x_stride,
-        points,
-        bias.len(),
-        out.len(),
-        out_stride,
-    );
-    let k = w.k();
-    let mut first = 0;
-    while first < points {
-        let m = (points - first).min(TILE_POINTS);
-        let mut corr = [0i32; TILE_POINTS];
-        for (c, p) in corr.iter_mut().zip(first..first + m) {
-            *c = T::correction(&x[p * x_stride..][..k]);
-        }
-        for g in 0..rows.div_ceil(GROUP_ROWS) {
-            let row0 = g * GROUP_ROWS;
-            let tile = Tile {
-                blocks: w.group(g),
-                k,
-                row0,
-                rows: (rows - row0).min(GROUP_ROWS),
-                bias: &bias[row0..rows],
-            };
-            let io = (x, x_stride, first, &corr[..m], &mut *out, out_stride);
-            match m {
-                1 => tile.run::<1, S, T>(io),
-                2 => tile.run::<2, S, T>(io),
-                3 => tile.run::<3, S, T>(io),
-                4 => tile.run::<4, S, T>(io),
-                5 => tile.run::<5, S, T>(io),
-                _ => tile.run::<6, S, T>(io),
-            }
-        }
-        first += m;
-    }
-}
+/// A tile's points: `(x, x_stride, first point, corrections, out, out_stride)`.
+type TileIo<'a, 'b, T> = (&'a [T], usize, usize, &'a [i32], &'b mut [i32], usize);
 
 /// One row group of one layer: what every tile of points multiplies by.
 struct Tile<'a> {
-    /// The group's blocks, one per step of four inputs.
+    /// The group's blocks, one per step.
     blocks: &'a [Block],
     /// Inputs per point.
     k: usize,
@@ -156,96 +71,264 @@ struct Tile<'a> {
     bias: &'a [i32],
 }
 
-/// A tile's points: `(x, x_stride, first point, corrections, out, out_stride)`.
-type TileIo<'a, 'b, T> = (&'a [T], usize, usize, &'a [i32], &'b mut [i32], usize);
+/// Stamps the loop for one register width: a module `$m` with the int8 and int16 kernels
+/// `$i8`/`$i16`, compiled with `$features`, on registers `$v` of `$lanes` i32 lanes, `$regs`
+/// registers per slice of a row group, and the width's intrinsics (`$zero`, `$set1`, `$load`
+/// of one register of a block, `$dpbusd`, `$dpwssd`, `$add`, `$sub`, and `$store`, which stores
+/// the low `min(len, $lanes)` lanes of `a + bias − c`).
+macro_rules! packed_loop {
+    (
+        $m:ident, $features:literal, $i8:ident, $i16:ident;
+        $v:ty, $lanes:expr, $regs:expr,
+        zero: $zero:expr, set1: $set1:expr, load: $load:expr,
+        dpbusd: $dpbusd:expr, dpwssd: $dpwssd:expr, store: $store:expr $(,)?
+    ) => {
+        mod $m {
+            use super::*;
 
-impl Tile<'_> {
-    /// `NP` points (rows `p..p + NP` of `x`) through the group, `S` inputs per step; `corr`
-    /// holds what to subtract from each point's sums.
-    #[inline]
-    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
-    fn run<const NP: usize, const S: usize, T: Vnni>(
-        &self,
-        (x, x_stride, p, corr, out, out_stride): TileIo<'_, '_, T>,
-    ) {
-        let full = self.k / S;
-        // Plain loops, not `array::from_fn` (an out-of-line call that hides the lengths): with
-        // every `steps[i]` sliced to `full`, the compiler keeps one bounds check per step of the
-        // loop below instead of one per point.
-        let mut rows: [&[T]; NP] = [&[]; NP];
-        let mut steps: [&[[T; S]]; NP] = [&[]; NP];
-        for (i, (row, st)) in rows.iter_mut().zip(&mut steps).enumerate() {
-            *row = &x[(p + i) * x_stride..][..self.k];
-            *st = &row.as_chunks().0[..full];
-        }
-        let (blocks, tail) = self.blocks.split_at(full);
-        let mut acc = [[_mm512_setzero_si512(); REGS]; NP];
-        for (s, block) in blocks.iter().enumerate() {
-            let wv = load_block(block);
-            for (a, xs) in acc.iter_mut().zip(&steps) {
-                mac::<T>(a, &wv, T::lane_bits(&xs[s]));
+            /// i32 lanes per register.
+            const LANES: usize = $lanes;
+            /// Registers per slice of a row group.
+            const REGS: usize = $regs;
+            /// Slices per row group.
+            const SLICES: usize = GROUP_ROWS / (LANES * REGS);
+
+            #[doc = concat!("[`crate::kernels::packed::matmat_packed_i8`], bit-exact, with `", $features, "`.")]
+            ///
+            /// # Safety
+            #[doc = concat!("The CPU must support `", $features, "`.")]
+            #[target_feature(enable = $features)]
+            pub unsafe fn $i8(
+                w: &PackedI8<'_>,
+                x: &[i8],
+                x_stride: usize,
+                points: usize,
+                bias: &[i32],
+                out: &mut [i32],
+                out_stride: usize,
+            ) {
+                tiles::<i8, 4>(w, x, x_stride, points, bias, out, out_stride)
             }
-        }
-        if let Some(block) = tail.first() {
-            // K is not a multiple of the step: the last step's missing inputs count as zero.
-            let wv = load_block(block);
-            for (a, row) in acc.iter_mut().zip(&rows) {
-                mac::<T>(a, &wv, T::lane_bits(&row[full * S..]));
+
+            #[doc = concat!("[`crate::kernels::packed::matmat_packed_i16`], bit-exact, with `", $features, "`.")]
+            ///
+            /// # Safety
+            #[doc = concat!("The CPU must support `", $features, "`.")]
+            #[target_feature(enable = $features)]
+            pub unsafe fn $i16(
+                w: &PackedI16<'_>,
+                x: &[i16],
+                x_stride: usize,
+                points: usize,
+                bias: &[i32],
+                out: &mut [i32],
+                out_stride: usize,
+            ) {
+                tiles::<i16, 2>(w, x, x_stride, points, bias, out, out_stride)
             }
-        }
-        for (i, (a, &c)) in acc.iter().zip(corr).enumerate() {
-            let y = &mut out[(p + i) * out_stride + self.row0..][..self.rows];
-            let c = _mm512_set1_epi32(c);
-            for (r, &a) in a.iter().enumerate() {
-                let lo = r * LANES;
-                if lo >= self.rows {
-                    break;
+
+            /// Both kernels: tiles of points, each through every row group. `S` is
+            /// `T::STEP`.
+            #[allow(clippy::too_many_arguments)]
+            #[inline]
+            #[target_feature(enable = $features)]
+            fn tiles<T: Vnni, const S: usize>(
+                w: &Packed<'_, T>,
+                x: &[T],
+                x_stride: usize,
+                points: usize,
+                bias: &[i32],
+                out: &mut [i32],
+                out_stride: usize,
+            ) {
+                let (points, rows) = packed_dims(
+                    w,
+                    x.len(),
+                    x_stride,
+                    points,
+                    bias.len(),
+                    out.len(),
+                    out_stride,
+                );
+                let k = w.k();
+                let mut first = 0;
+                while first < points {
+                    let m = (points - first).min(TILE_POINTS);
+                    let mut corr = [0i32; TILE_POINTS];
+                    for (c, p) in corr.iter_mut().zip(first..first + m) {
+                        *c = T::correction(&x[p * x_stride..][..k]);
+                    }
+                    for g in 0..rows.div_ceil(GROUP_ROWS) {
+                        let row0 = g * GROUP_ROWS;
+                        let tile = Tile {
+                            blocks: w.group(g),
+                            k,
+                            row0,
+                            rows: (rows - row0).min(GROUP_ROWS),
+                            bias: &bias[row0..rows],
+                        };
+                        for slice in 0..SLICES {
+                            if slice * REGS * LANES >= tile.rows {
+                                break;
+                            }
+                            let io = (x, x_stride, first, &corr[..m], &mut *out, out_stride);
+                            match m {
+                                1 => run::<1, S, T>(&tile, slice, io),
+                                2 => run::<2, S, T>(&tile, slice, io),
+                                3 => run::<3, S, T>(&tile, slice, io),
+                                4 => run::<4, S, T>(&tile, slice, io),
+                                5 => run::<5, S, T>(&tile, slice, io),
+                                _ => run::<6, S, T>(&tile, slice, io),
+                            }
+                        }
+                    }
+                    first += m;
                 }
-                let b = ld512m_i32(&self.bias[lo..self.rows]);
-                st512m_i32(&mut y[lo..], _mm512_sub_epi32(_mm512_add_epi32(a, b), c));
+            }
+
+            /// `NP` points (rows `p..p + NP` of `x`) through slice `slice` of the group, `S`
+            /// inputs per step; `corr` holds what to subtract from each point's sums.
+            #[inline]
+            #[target_feature(enable = $features)]
+            fn run<const NP: usize, const S: usize, T: Vnni>(
+                tile: &Tile<'_>,
+                slice: usize,
+                (x, x_stride, p, corr, out, out_stride): TileIo<'_, '_, T>,
+            ) {
+                let full = tile.k / S;
+                // Plain loops, not `array::from_fn` (an out-of-line call that hides the
+                // lengths): with every `steps[i]` sliced to `full`, the compiler keeps one
+                // bounds check per step of the loop below instead of one per point.
+                let mut rows: [&[T]; NP] = [&[]; NP];
+                let mut steps: [&[[T; S]]; NP] = [&[]; NP];
+                for (i, (row, st)) in rows.iter_mut().zip(&mut steps).enumerate() {
+                    *row = &x[(p + i) * x_stride..][..tile.k];
+                    *st = &row.as_chunks().0[..full];
+                }
+                let reg0 = slice * REGS;
+                let (blocks, tail) = tile.blocks.split_at(full);
+                let mut acc = [[$zero(); REGS]; NP];
+                for (s, block) in blocks.iter().enumerate() {
+                    let wv: [$v; REGS] = core::array::from_fn(|r| $load(block, reg0 + r));
+                    for (a, xs) in acc.iter_mut().zip(&steps) {
+                        mac::<T>(a, &wv, T::lane_bits(&xs[s]));
+                    }
+                }
+                if let Some(block) = tail.first() {
+                    // K is not a multiple of the step: the missing inputs count as zero.
+                    let wv: [$v; REGS] = core::array::from_fn(|r| $load(block, reg0 + r));
+                    for (a, row) in acc.iter_mut().zip(&rows) {
+                        mac::<T>(a, &wv, T::lane_bits(&row[full * S..]));
+                    }
+                }
+                for (i, (a, &c)) in acc.iter().zip(corr).enumerate() {
+                    let y = &mut out[(p + i) * out_stride + tile.row0..][..tile.rows];
+                    for (r, &a) in a.iter().enumerate() {
+                        let lo = (reg0 + r) * LANES;
+                        if lo >= tile.rows {
+                            break;
+                        }
+                        $store(&mut y[lo..], a, &tile.bias[lo..tile.rows], c);
+                    }
+                }
+            }
+
+            /// One point's step of inputs (the lane's four bytes), broadcast, times one
+            /// slice of a block: `vpdpbusd` (int8) or `vpdpwssd` (int16) into each of the
+            /// point's accumulators.
+            #[inline]
+            #[target_feature(enable = $features)]
+            fn mac<T: Vnni>(acc: &mut [$v; REGS], w: &[$v; REGS], inputs: i32) {
+                let v = $set1(inputs);
+                for (a, &w) in acc.iter_mut().zip(w) {
+                    *a = if T::WORDS {
+                        $dpwssd(*a, w, v)
+                    } else {
+                        $dpbusd(*a, w, v)
+                    };
+                }
             }
         }
-    }
+
+        pub use $m::{$i16, $i8};
+    };
 }
 
-/// One point's step of inputs (the lane's four bytes), broadcast, times one block:
-/// `vpdpbusd` (int8) or `vpdpwssd` (int16) into each of the point's four accumulators (16
-/// outputs × one step each).
-#[inline]
-#[target_feature(enable = "avx512f,avx512vnni")]
-fn mac<T: Vnni>(acc: &mut [__m512i; REGS], w: &[__m512i; REGS], inputs: i32) {
-    let v = _mm512_set1_epi32(inputs);
-    for (a, &w) in acc.iter_mut().zip(w) {
-        *a = if T::WORDS {
-            _mm512_dpwssd_epi32(*a, w, v)
-        } else {
-            _mm512_dpbusd_epi32(*a, w, v)
-        };
-    }
+packed_loop! {
+    zmm, "avx2,avx512f,avx512bw,avx512vl,avx512vnni",
+    matmat_packed_i8_avx512vnni, matmat_packed_i16_avx512vnni;
+    __m512i, 16, 4,
+    zero: _mm512_setzero_si512,
+    set1: _mm512_set1_epi32,
+    load: load512,
+    dpbusd: _mm512_dpbusd_epi32,
+    dpwssd: _mm512_dpwssd_epi32,
+    store: store512,
 }
 
-/// The four registers of one block.
+packed_loop! {
+    ymm, "avx2,avxvnni",
+    matmat_packed_i8_avxvnni, matmat_packed_i16_avxvnni;
+    __m256i, 8, 2,
+    zero: _mm256_setzero_si256,
+    set1: _mm256_set1_epi32,
+    load: load256,
+    dpbusd: _mm256_dpbusd_avx_epi32,
+    dpwssd: _mm256_dpwssd_avx_epi32,
+    store: store256,
+}
+
+/// Register `reg` (bytes `64·reg..`) of a block; `reg < 4`.
 #[inline]
 #[target_feature(enable = "avx512f")]
-fn load_block(block: &Block) -> [__m512i; REGS] {
+fn load512(block: &Block, reg: usize) -> __m512i {
     let (regs, _) = block.as_chunks::<64>();
-    // SAFETY: each chunk is 64 readable bytes; `loadu` has no alignment requirement.
-    core::array::from_fn(|q| unsafe { _mm512_loadu_si512(regs[q].as_ptr().cast()) })
+    // SAFETY: the chunk is 64 readable bytes; `loadu` has no alignment requirement.
+    unsafe { _mm512_loadu_si512(regs[reg].as_ptr().cast()) }
 }
 
-/// The first `min(t.len(), 16)` values of `t`, zeros above.
+/// Register `reg` (bytes `32·reg..`) of a block; `reg < 8`.
 #[inline]
-#[target_feature(enable = "avx512f")]
-fn ld512m_i32(t: &[i32]) -> __m512i {
-    // SAFETY: the mask selects lanes `0..min(t.len(), 16)`, all inside `t`; others are not read.
-    unsafe { _mm512_maskz_loadu_epi32(super::low_mask(t.len()) as u16, t.as_ptr()) }
+#[target_feature(enable = "avx2")]
+fn load256(block: &Block, reg: usize) -> __m256i {
+    let (regs, _) = block.as_chunks::<32>();
+    // SAFETY: the chunk is 32 readable bytes; `loadu` has no alignment requirement.
+    unsafe { _mm256_loadu_si256(regs[reg].as_ptr().cast()) }
 }
 
-/// Stores the low `min(t.len(), 16)` lanes of `v` into `t`.
+/// `y[..n] = a + bias[..n] − c` for the low `n = min(y.len(), bias.len(), 16)` lanes; nothing
+/// else of `y` or `bias` is touched.
 #[inline]
 #[target_feature(enable = "avx512f")]
-fn st512m_i32(t: &mut [i32], v: __m512i) {
-    // SAFETY: the mask selects lanes `0..min(t.len(), 16)`, all inside `t`; others are not
-    // written.
-    unsafe { _mm512_mask_storeu_epi32(t.as_mut_ptr(), super::low_mask(t.len()) as u16, v) }
+fn store512(y: &mut [i32], a: __m512i, bias: &[i32], c: i32) {
+    let mask = super::low_mask(y.len().min(bias.len())) as u16;
+    // SAFETY: the mask selects lanes `0..min(len, 16)`, inside both `bias` and `y`; the others
+    // are neither read nor written.
+    unsafe {
+        let b = _mm512_maskz_loadu_epi32(mask, bias.as_ptr());
+        let v = _mm512_sub_epi32(_mm512_add_epi32(a, b), _mm512_set1_epi32(c));
+        _mm512_mask_storeu_epi32(y.as_mut_ptr(), mask, v)
+    }
+}
+
+/// [`store512`] for 8 lanes: a full store when 8 fit, else lane by lane.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn store256(y: &mut [i32], a: __m256i, bias: &[i32], c: i32) {
+    let n = y.len().min(bias.len());
+    if let (Some(y), Some(b)) = (y.first_chunk_mut::<8>(), bias.first_chunk::<8>()) {
+        // SAFETY: `b` and `y` are 8 i32 each; `loadu`/`storeu` have no alignment requirement.
+        unsafe {
+            let b = _mm256_loadu_si256(b.as_ptr().cast());
+            let v = _mm256_sub_epi32(_mm256_add_epi32(a, b), _mm256_set1_epi32(c));
+            _mm256_storeu_si256(y.as_mut_ptr().cast(), v)
+        }
+        return;
+    }
+    let mut lanes = [0i32; 8];
+    // SAFETY: `lanes` is 8 i32; `storeu` has no alignment requirement.
+    unsafe { _mm256_storeu_si256(lanes.as_mut_ptr().cast(), a) };
+    for ((y, &l), &b) in y.iter_mut().zip(&lanes).zip(bias).take(n) {
+        *y = l.wrapping_add(b).wrapping_sub(c);
+    }
 }
