@@ -103,5 +103,27 @@ fn matmat_i8(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, matvec_i8, matvec_i16, matmat_i8);
+fn packed_layers(c: &mut Criterion) {
+    // The paper model's int8 point layers as the engine runs them on a CPU with native packed
+    // kernels: blocks of 24 points (`Plan::block`), every packed kernel family this CPU has.
+    let p = 24;
+    for (k, n) in [(64, 64), (64, 128), (128, 256), (512, 1024)] {
+        let w = values(k * n, 7, |v| v as i8);
+        let bias = values(n, 9, |v| (v as i32) >> 8);
+        let x = values(p * k, 8, |v| v as i8);
+        let mut out = vec![0; p * n];
+        let mut buf = vec![0u8; packed::packed_len(n, k).expect("fits")];
+        let (pw, _) = PackedI8::pack(&w, n, k, &mut buf).expect("pack");
+        let mut g = c.benchmark_group(format!("packed_i8/K={k} out={n} P={p}"));
+        g.throughput(Throughput::Elements((k * n * p) as u64));
+        for kern in kernels_here().into_iter().filter(Kernels::has_packed) {
+            g.bench_function(kern.name(), |b| {
+                b.iter(|| kern.matmat_packed_i8(&pw, black_box(&x), k, p, &bias, &mut out, n))
+            });
+        }
+        g.finish();
+    }
+}
+
+criterion_group!(benches, matvec_i8, matvec_i16, matmat_i8, packed_layers);
 criterion_main!(benches);

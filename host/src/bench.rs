@@ -83,6 +83,8 @@ pub fn raster(
 /// Result of `evpose bench infer`.
 #[derive(Clone, Debug, Serialize)]
 pub struct InferBench {
+    /// The CPU, from `/proc/cpuinfo` (empty where it is not readable).
+    pub cpu: String,
     /// Points per inference.
     pub points: usize,
     /// Multiply-accumulates per inference.
@@ -93,11 +95,14 @@ pub struct InferBench {
     pub core_f32_ms: f64,
     /// Core int8 engine.
     pub core_i8_ms: f64,
+    /// Fastest run per engine, ms (tract f32, core f32, core i8): on a shared machine, the
+    /// figure least disturbed by other work.
+    pub fastest_ms: [f64; 3],
     /// tract f32 / core i8.
     pub speedup_i8_vs_tract: f64,
     /// core f32 / core i8.
     pub speedup_i8_vs_f32: f64,
-    /// Core int8 MACs per second.
+    /// Core int8 MACs per second (median run).
     pub i8_gmacs: f64,
     /// This CPU's one-thread int8 peak for that kernel family, GMAC/s (a loop of independent
     /// multiply-accumulate instructions, best of 5); absent for the reference kernels.
@@ -108,8 +113,9 @@ pub struct InferBench {
     pub kernels: String,
 }
 
+/// `(median, fastest)` ms of `iters` runs of `f`, after one warm-up run.
 #[cfg(feature = "onnx")]
-fn median_ms(iters: u32, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
+fn time_ms(iters: u32, mut f: impl FnMut() -> Result<()>) -> Result<(f64, f64)> {
     f()?; // warm-up
     let mut t: Vec<f64> = Vec::new();
     for _ in 0..iters.max(1) {
@@ -118,7 +124,7 @@ fn median_ms(iters: u32, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
         t.push(s.elapsed().as_secs_f64() * 1e3);
     }
     t.sort_by(f64::total_cmp);
-    Ok(t[t.len() / 2])
+    Ok((t[t.len() / 2], t[0]))
 }
 
 /// GMAC/s of [`evpose_core::kernels::peak_loop`] for `isa`, best of 5 runs of 120 M
@@ -173,13 +179,15 @@ pub fn infer(onnx: &Path, points: Option<&Path>, iterations: u32) -> Result<Infe
     let mut core_i8 = CoreRunner::new(&qblob)?;
     let m = core_f32.model();
     let macs = m.macs_per_point() * n as u64 + m.macs_after_pooling();
-    let tract_ms = median_ms(iterations, || tract.run(&input).map(|_| ()))?;
-    let f32_ms = median_ms(iterations, || core_f32.run_f32(&input).map(|_| ()))?;
-    let i8_ms = median_ms(iterations, || core_i8.run_i8(&input).map(|_| ()))?;
+    let (tract_ms, tract_min) = time_ms(iterations, || tract.run(&input).map(|_| ()))?;
+    let (f32_ms, f32_min) = time_ms(iterations, || core_f32.run_f32(&input).map(|_| ()))?;
+    let (i8_ms, i8_min) = time_ms(iterations, || core_i8.run_i8(&input).map(|_| ()))?;
     let k = model::kernels();
     let peak = peak_gmacs(k.isa());
     let i8_gmacs = macs as f64 / (i8_ms * 1e-3) / 1e9;
     Ok(InferBench {
+        cpu: cpu_model(),
+        fastest_ms: [tract_min, f32_min, i8_min],
         points: n,
         macs,
         tract_f32_ms: tract_ms,
@@ -231,16 +239,24 @@ pub struct PipelineBench {
 }
 
 /// The CPU's model name (Linux), for the figures it qualifies.
+///
+/// With the family and model numbers when `/proc/cpuinfo` has them (a VM often names its CPU
+/// only "Intel(R) Xeon(R) Processor"), e.g. `Intel(R) Xeon(R) Processor (family 6, model 207)`.
 pub fn cpu_model() -> String {
-    std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|t| {
-            t.lines()
-                .find(|l| l.starts_with("model name"))
-                .and_then(|l| l.split_once(':'))
-                .map(|(_, v)| v.trim().to_string())
-        })
-        .unwrap_or_default()
+    let Ok(info) = std::fs::read_to_string("/proc/cpuinfo") else {
+        return String::new();
+    };
+    let field = |name: &str| {
+        info.lines()
+            .filter_map(|l| l.split_once(':'))
+            .find(|(k, _)| k.trim() == name)
+            .map(|(_, v)| v.trim().to_string())
+    };
+    let name = field("model name").unwrap_or_default();
+    match (field("cpu family"), field("model")) {
+        (Some(f), Some(m)) => format!("{name} (family {f}, model {m})"),
+        _ => name,
+    }
 }
 
 /// Runs `req` `passes` times on one thread (median pass) and `passes × threads` times on

@@ -275,16 +275,18 @@ pub fn bench_infer(a: &BenchInferArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&b)?);
     } else {
         println!(
-            "model {} ({} points, {:.3} GMAC per inference), one thread, median of {}",
+            "model {} ({} points, {:.3} GMAC per inference), one thread, median (fastest) of {} on {}",
             a.model.display(),
             n,
             macs as f64 / 1e9,
-            a.iterations
+            a.iterations,
+            b.cpu
         );
-        println!("  tract f32 {:>9.2} ms", b.tract_f32_ms);
-        println!("  core  f32 {:>9.2} ms", b.core_f32_ms);
+        let [tract, f32, i8] = b.fastest_ms;
+        println!("  tract f32 {:>9.2} ms ({tract:.2})", b.tract_f32_ms);
+        println!("  core  f32 {:>9.2} ms ({f32:.2})", b.core_f32_ms);
         println!(
-            "  core  i8  {:>9.2} ms  ({:.2} GMAC/s, kernels: {})",
+            "  core  i8  {:>9.2} ms ({i8:.2})  ({:.2} GMAC/s, kernels: {})",
             b.core_i8_ms, b.i8_gmacs, b.kernels
         );
         if let (Some(p), Some(f)) = (b.peak_gmacs, b.fraction_of_peak) {

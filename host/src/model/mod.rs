@@ -158,10 +158,41 @@ pub fn run_core_f32(blob: &AlignedBlob, points: &[[f32; 5]]) -> Result<Logits<f3
     CoreRunner::new(blob)?.run_f32(points)
 }
 
-/// The int8 kernels for this CPU (detected once).
+/// The environment variable that picks a kernel family by name instead of the fastest this
+/// CPU runs (`reference`, `avx2`, `avxvnni`, `avx512bw`, `avx512vnni`): to measure or check
+/// one family on a CPU that has several.
+pub const KERNELS_ENV: &str = "EVPOSE_KERNELS";
+
+/// The int8 kernels for this CPU (detected once), or the family [`KERNELS_ENV`] names.
 pub fn kernels() -> &'static Kernels {
     static K: std::sync::OnceLock<Kernels> = std::sync::OnceLock::new();
-    K.get_or_init(Kernels::detect)
+    K.get_or_init(|| match std::env::var(KERNELS_ENV) {
+        Ok(name) => kernels_named(&name).unwrap_or_else(|e| {
+            let k = Kernels::detect();
+            eprintln!("warning: {e}; using {}", k.name());
+            k
+        }),
+        Err(_) => Kernels::detect(),
+    })
+}
+
+/// The kernel family called `name`, if this build has it and this CPU runs it.
+pub fn kernels_named(name: &str) -> Result<Kernels> {
+    let here: Vec<&str> = evpose_core::kernels::Isa::ALL
+        .iter()
+        .filter(|i| i.is_supported_here())
+        .map(|i| i.name())
+        .collect();
+    evpose_core::kernels::Isa::ALL
+        .iter()
+        .find(|i| i.name() == name)
+        .and_then(|i| i.kernels())
+        .ok_or_else(|| {
+            anyhow!(
+                "{KERNELS_ENV}={name}: not a kernel family this CPU runs (it runs: {})",
+                here.join(", ")
+            )
+        })
 }
 
 /// Runs the core's int8 engine once with this CPU's kernels; outputs are the heads' int32
@@ -213,4 +244,26 @@ pub fn read_points(path: &Path) -> Result<Vec<[f32; 5]>> {
     Ok(v.chunks_exact(5)
         .map(|r| std::array::from_fn(|i| r[i] as f32))
         .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kernel_families_are_picked_by_name() {
+        assert_eq!(kernels_named("reference").unwrap().name(), "reference");
+        let detected = Kernels::detect();
+        assert_eq!(
+            kernels_named(detected.name()).unwrap().isa(),
+            detected.isa()
+        );
+        let err = kernels_named("avx1024").unwrap_err().to_string();
+        assert!(
+            err.contains("EVPOSE_KERNELS=avx1024") && err.contains("reference"),
+            "{err}"
+        );
+        // A family this build has but this CPU (or target) cannot run is refused too.
+        assert!(kernels_named("armdsp").is_err());
+    }
 }
