@@ -137,10 +137,14 @@ fn widest_layer(model: &Model<'_>) -> usize {
 /// Byte offset of each point layer's output in the activation buffer, and the buffer width.
 fn layer_offsets(model: &Model<'_>) -> ([usize; MAX_POINT_LAYERS + 1], usize) {
     let mut offs = [0; MAX_POINT_LAYERS + 1];
-    for i in 0..model.point_layer_count() {
-        offs[i + 1] = offs[i] + model.layer(i).desc.out_dim as usize;
+    let mut end = 0;
+    for (i, o) in offs[1..].iter_mut().enumerate() {
+        if i < model.point_layer_count() {
+            end += model.layer(i).desc.out_dim as usize;
+            *o = end;
+        }
     }
-    (offs, offs[model.point_layer_count()])
+    (offs, end)
 }
 
 /// Range of the activation buffer a point layer reads: its sources, which are contiguous

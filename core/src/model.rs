@@ -321,60 +321,66 @@ pub struct Model<'a> {
     preprocessing: Preprocessing,
 }
 
+// The readers below return 0 past the end of `b` instead of panicking: `parse` checks every
+// length before it reads, and an image then links no panic path for them.
+
 fn u16_at(b: &[u8], o: usize) -> u16 {
-    u16::from_le_bytes([b[o], b[o + 1]])
+    b.get(o..)
+        .and_then(<[u8]>::first_chunk)
+        .map_or(0, |c| u16::from_le_bytes(*c))
 }
 
 fn u32_at(b: &[u8], o: usize) -> u32 {
-    u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]])
+    b.get(o..)
+        .and_then(<[u8]>::first_chunk)
+        .map_or(0, |c| u32::from_le_bytes(*c))
 }
 
 impl<'a> Model<'a> {
     /// Validates a blob. The blob must start at a 16-byte-aligned address.
     pub fn parse(blob: &'a [u8]) -> Result<Self, ModelError> {
-        if blob.len() < HEADER_LEN {
+        // The fixed header as an array: its reads below need no bounds checks.
+        let Some(head) = blob.first_chunk::<HEADER_LEN>() else {
             return Err(ModelError::Truncated {
                 needed: HEADER_LEN,
                 got: blob.len(),
             });
-        }
+        };
         use header as h;
-        if blob[h::MAGIC..h::MAGIC + 4] != MAGIC {
+        if head[h::MAGIC..h::MAGIC + 4] != MAGIC {
             return Err(ModelError::BadMagic);
         }
-        let version = u16_at(blob, h::VERSION);
+        let version = u16_at(head, h::VERSION);
         if !(1..=VERSION).contains(&version) {
             return Err(ModelError::Version(version));
         }
-        let total = u32_at(blob, h::TOTAL) as usize;
-        if blob.len() < total {
+        let total = u32_at(head, h::TOTAL) as usize;
+        let Some(blob) = blob.get(..total) else {
             return Err(ModelError::Truncated {
                 needed: total,
                 got: blob.len(),
             });
-        }
+        };
         if total < HEADER_LEN {
             return Err(ModelError::Header("total length below the header size"));
         }
-        let blob = &blob[..total];
-        let stored = u32_at(blob, h::CRC);
-        let computed = CRC.checksum(&blob[h::CRC_FROM..]);
+        let stored = u32_at(head, h::CRC);
+        let computed = CRC.checksum(blob.get(h::CRC_FROM..).unwrap_or_default());
         if stored != computed {
             return Err(ModelError::Checksum { stored, computed });
         }
         if !(blob.as_ptr() as usize).is_multiple_of(ALIGN) {
             return Err(ModelError::Misaligned);
         }
-        if blob[h::RESERVED] != 0 {
+        if head[h::RESERVED] != 0 {
             return Err(ModelError::Header("reserved byte 7 must be zero"));
         }
-        let dtype = match blob[h::DTYPE] {
+        let dtype = match head[h::DTYPE] {
             0 => DType::F32,
             1 => DType::I8,
             _ => return Err(ModelError::Header("unknown dtype")),
         };
-        let mut shifts = [0u8; FEATURES];
-        shifts.copy_from_slice(&blob[h::INPUT_SHIFTS..h::INPUT_SHIFTS + FEATURES]);
+        let shifts: [u8; FEATURES] = core::array::from_fn(|i| head[h::INPUT_SHIFTS + i]);
         if shifts.iter().any(|&s| s > 15) {
             return Err(ModelError::Header("input shift above 15"));
         }
@@ -383,18 +389,18 @@ impl<'a> Model<'a> {
             version,
             dtype,
             layers: [None; MAX_LAYERS],
-            layer_count: usize::from(u16_at(blob, h::LAYERS)),
-            point_layers: usize::from(u16_at(blob, h::POINT_LAYERS)),
-            joints: u16_at(blob, h::JOINTS),
-            width: u16_at(blob, h::WIDTH),
-            height: u16_at(blob, h::HEIGHT),
-            head_dim: u16_at(blob, h::HEAD_DIM),
+            layer_count: usize::from(u16_at(head, h::LAYERS)),
+            point_layers: usize::from(u16_at(head, h::POINT_LAYERS)),
+            joints: u16_at(head, h::JOINTS),
+            width: u16_at(head, h::WIDTH),
+            height: u16_at(head, h::HEIGHT),
+            head_dim: u16_at(head, h::HEAD_DIM),
             input_shifts: shifts,
-            avg_scale: f32::from_bits(u32_at(blob, h::AVG_SCALE)),
+            avg_scale: f32::from_bits(u32_at(head, h::AVG_SCALE)),
             preprocessing: Preprocessing {
-                points: u32_at(blob, h::POINTS),
-                window_events: u32_at(blob, h::WINDOW_EVENTS),
-                slices: blob[h::SLICES],
+                points: u32_at(head, h::POINTS),
+                window_events: u32_at(head, h::WINDOW_EVENTS),
+                slices: head[h::SLICES],
             },
         };
         if version == 1 && m.preprocessing != Preprocessing::default() {
@@ -407,18 +413,23 @@ impl<'a> Model<'a> {
                 "more time slices than the rasterizer has",
             ));
         }
-        if blob[h::SLICES + 1..HEADER_LEN].iter().any(|&b| b != 0) {
+        if head[h::SLICES + 1..].iter().any(|&b| b != 0) {
             return Err(ModelError::Header("reserved bytes 57..64 must be zero"));
         }
         m.check_header()?;
-        let table = u32_at(blob, h::TABLE) as usize;
-        let table_end = table + m.layer_count * ENTRY_LEN;
-        if table < HEADER_LEN || table_end > total {
-            return Err(ModelError::Header("layer table outside the blob"));
-        }
-        for i in 0..m.layer_count {
-            let desc = m.parse_entry(i, &blob[table + i * ENTRY_LEN..][..ENTRY_LEN])?;
-            m.layers[i] = Some(desc);
+        let table = u32_at(head, h::TABLE) as usize;
+        let outside = ModelError::Header("layer table outside the blob");
+        let entries = table
+            .checked_add(m.layer_count * ENTRY_LEN)
+            .and_then(|end| blob.get(table..end))
+            .filter(|_| table >= HEADER_LEN)
+            .ok_or(outside)?;
+        // `check_header` bounded the layer count by MAX_LAYERS, the length of `m.layers`.
+        for (i, entry) in entries.as_chunks::<ENTRY_LEN>().0.iter().enumerate() {
+            let desc = m.parse_entry(i, entry)?;
+            if let Some(slot) = m.layers.get_mut(i) {
+                *slot = Some(desc);
+            }
         }
         m.check_chain()?;
         Ok(m)
@@ -444,7 +455,7 @@ impl<'a> Model<'a> {
         Ok(())
     }
 
-    fn parse_entry(&self, i: usize, e: &[u8]) -> Result<LayerDesc, ModelError> {
+    fn parse_entry(&self, i: usize, e: &[u8; ENTRY_LEN]) -> Result<LayerDesc, ModelError> {
         let err = |reason| ModelError::Layer {
             index: i as u8,
             reason,
@@ -561,16 +572,20 @@ impl<'a> Model<'a> {
             return Err(err("i16 heads take at most 256 inputs"));
         }
         let n = d.in_dim as usize * d.out_dim as usize;
-        let w = &self.blob[d.weights as usize..][..2 * n];
-        if w.chunks_exact(2)
-            .any(|b| i16::from_le_bytes([b[0], b[1]]).unsigned_abs() > HEAD_WEIGHT_LIMIT as u16)
+        let w = self.span(d.weights, 2 * n);
+        if w.as_chunks::<2>()
+            .0
+            .iter()
+            .any(|b| i16::from_le_bytes(*b).unsigned_abs() > HEAD_WEIGHT_LIMIT as u16)
         {
             return Err(err("i16 head weight beyond the 15-bit limit"));
         }
-        let b = &self.blob[d.bias as usize..][..4 * d.out_dim as usize];
-        if b.chunks_exact(4).any(|b| {
-            i32::from_le_bytes([b[0], b[1], b[2], b[3]]).unsigned_abs() > HEAD_BIAS_LIMIT as u32
-        }) {
+        let b = self.span(d.bias, 4 * d.out_dim as usize);
+        if b.as_chunks::<4>()
+            .0
+            .iter()
+            .any(|b| i32::from_le_bytes(*b).unsigned_abs() > HEAD_BIAS_LIMIT as u32)
+        {
             return Err(err("i16 head bias beyond its limit"));
         }
         Ok(())
@@ -614,7 +629,11 @@ impl<'a> Model<'a> {
                 width += if bit == 0 {
                     FEATURES as u32
                 } else {
-                    self.layers[bit - 1].map_or(0, |l| l.out_dim)
+                    self.layers
+                        .get(bit - 1)
+                        .copied()
+                        .flatten()
+                        .map_or(0, |l| l.out_dim)
                 };
             }
         }
@@ -660,21 +679,39 @@ impl<'a> Model<'a> {
 
     fn desc(&self, i: usize) -> LayerDesc {
         // Every index below layer_count was filled by parse().
-        self.layers[i].unwrap_or(LayerDesc {
-            kind: LayerKind::Point,
-            in_dim: 0,
-            out_dim: 0,
-            sources: 0,
-            leaky: None,
-            weight_type: WeightType::F32,
-            weights: 0,
-            bias: 0,
-            scales: 0,
-        })
+        match self.layers.get(i) {
+            Some(Some(d)) => *d,
+            _ => LayerDesc {
+                kind: LayerKind::Point,
+                in_dim: 0,
+                out_dim: 0,
+                sources: 0,
+                leaky: None,
+                weight_type: WeightType::F32,
+                weights: 0,
+                bias: 0,
+                scales: 0,
+            },
+        }
+    }
+
+    /// `len` bytes of the blob from `offset` (checked in parse; empty if they were not there).
+    fn span(&self, offset: u32, len: usize) -> &'a [u8] {
+        self.blob
+            .get(offset as usize..)
+            .and_then(|b| b.get(..len))
+            .unwrap_or(&[])
     }
 
     fn array<T: Pod>(&self, offset: u32, len: usize) -> &'a [T] {
-        let bytes = &self.blob[offset as usize..][..len * size_of::<T>()];
+        // One range check (parse checked the arrays, so it always passes): `span`'s two
+        // checks cost 0.25 % more instructions per inference on the M7, where `run_i8` asks
+        // for each layer's arrays once per block of points.
+        let o = offset as usize;
+        let bytes = self
+            .blob
+            .get(o..o.wrapping_add(len.wrapping_mul(size_of::<T>())))
+            .unwrap_or(&[]);
         // Offsets are 16-byte aligned within a 16-byte-aligned blob (checked in parse).
         bytemuck::try_cast_slice(bytes).unwrap_or(&[])
     }
