@@ -152,7 +152,16 @@ fn layer_offsets(model: &Model<'_>) -> ([usize; MAX_POINT_LAYERS + 1], usize) {
 fn source_range(sources: u32, offs: &[usize]) -> core::ops::Range<usize> {
     let first = sources.trailing_zeros() as usize; // ≥ 1 for layer sources
     let last = 31 - sources.leading_zeros() as usize;
-    offs[first - 1]..offs[last]
+    let at = |i: usize| offs.get(i).copied().unwrap_or(0);
+    at(first.wrapping_sub(1))..at(last)
+}
+
+/// `s.split_at_mut(mid)`, or the scratch error (ruled out by [`Plan::check`], which a run
+/// calls first: written so, an MCU image has no panic path here).
+fn split<T>(s: &mut [T], mid: usize) -> Result<(&mut [T], &mut [T]), InferError> {
+    let got = s.len();
+    s.split_at_mut_checked(mid)
+        .ok_or(InferError::Scratch { needed: mid, got })
 }
 
 /// An intermediate result of the f32 engine, handed to an observer (calibration).
@@ -496,21 +505,38 @@ impl<'m> Plan<'m> {
         let pooled = m.pooled_width() as usize;
         let last = m.point_layer_count() - 1;
         let block = self.block;
-        let (sum, rest) = scratch.split_at_mut(pooled);
-        let (acc, bytes) = rest.split_at_mut(block * widest_layer(m));
-        let bytes: &mut [i8] = bytemuck::cast_slice_mut(bytes);
-        let (input_bytes, bytes) = bytes.split_at_mut(16 * block);
-        let inputs: &mut [i16] = bytemuck::cast_slice_mut(input_bytes);
-        let (acts, bytes) = bytes.split_at_mut(block * acts_len);
-        let (gathered, fc) = bytes.split_at_mut(block * widest_input(m));
-        let (a, b) = fc.split_at_mut((2 * pooled).max(m.widest_fc()));
-        let (max, _) = a.split_at_mut(pooled);
+        // Checked splits, casts and slices (`split`, `get`): `check` ruled every failure out,
+        // and an MCU image then has no panic path in the per-point loop.
+        let (sum, rest) = split(scratch, pooled)?;
+        let (acc, bytes) = split(rest, block * widest_layer(m))?;
+        // Neither cast fails: i32 to bytes, and an even length from the start of the
+        // 4-byte-aligned scratch to i16.
+        let bytes: &mut [i8] =
+            bytemuck::try_cast_slice_mut(bytes).map_err(|_| InferError::DType)?;
+        let (input_bytes, bytes) = split(bytes, 16 * block)?;
+        let inputs: &mut [i16] =
+            bytemuck::try_cast_slice_mut(input_bytes).map_err(|_| InferError::DType)?;
+        let (acts, bytes) = split(bytes, block * acts_len)?;
+        let (gathered, fc) = split(bytes, block * widest_input(m))?;
+        let (a, b) = split(fc, (2 * pooled).max(m.widest_fc()))?;
+        let (max, _) = split(a, pooled)?;
         max.fill(i8::MIN);
         sum.fill(0);
-        for chunk in points.chunks(block) {
+        let offset = |i: usize| offs.get(i).copied().unwrap_or(0);
+        // Point `p`'s row of `len` values in a buffer of rows `stride` apart, from `from` on.
+        fn row<T>(buf: &[T], p: usize, stride: usize, from: usize, len: usize) -> &[T] {
+            let at = p * stride + from;
+            buf.get(at..at + len).unwrap_or_default()
+        }
+        fn row_mut<T>(buf: &mut [T], p: usize, stride: usize, from: usize, len: usize) -> &mut [T] {
+            let at = p * stride + from;
+            buf.get_mut(at..at + len).unwrap_or_default()
+        }
+        for chunk in points.chunks(block.max(1)) {
             let n = chunk.len();
-            for (dst, p) in inputs.chunks_exact_mut(8).zip(chunk) {
-                dst[..FEATURES].copy_from_slice(&coding.code(p));
+            for (dst, p) in inputs.as_chunks_mut::<8>().0.iter_mut().zip(chunk) {
+                let code = coding.code(p);
+                dst[..FEATURES].copy_from_slice(&code);
             }
             for i in 0..=last {
                 let l = m.layer(i);
@@ -518,8 +544,12 @@ impl<'m> Plan<'m> {
                     return Err(InferError::DType); // ruled out by the plan
                 };
                 let (k_in, out_dim) = (l.desc.in_dim as usize, l.desc.out_dim as usize);
-                let acc = &mut acc[..n * out_dim];
-                let packed = self.packed.and_then(|(p, run)| Some((p.layers[i]?, run)));
+                let acc = acc.get_mut(..n * out_dim).unwrap_or_default();
+                let packed = self
+                    .packed
+                    .and_then(|(p, run)| Some((p.layers.get(i).copied()??, run)));
+                // Indexed loops over the points, not zips of chunk iterators: those left an
+                // outlined `Zip::new` with a division panic path in the M7 image.
                 match (l.weights, packed) {
                     // The coded points (8 i16 apart) or the sources, a contiguous run of each
                     // point's activation row (read in place, rows `acts_len` apart).
@@ -529,30 +559,32 @@ impl<'m> Plan<'m> {
                             Weights::I8(_) => source_range(l.desc.sources, offs).start,
                             _ => 0,
                         };
-                        let inputs = (&inputs[..n * 8], acts.get(src..).unwrap_or_default());
+                        let coded = inputs.get(..n * 8).unwrap_or_default();
+                        let inputs = (coded, acts.get(src..).unwrap_or_default());
                         run(k, layer, inputs, acts_len, n, bias, acc, out_dim);
                     }
                     (Weights::I16(w), None) => {
-                        for (x, acc) in inputs.chunks_exact(8).zip(acc.chunks_exact_mut(out_dim)) {
-                            k.matvec_i16(w, &x[..FEATURES], bias, acc);
+                        for (p, y) in acc.chunks_exact_mut(out_dim.max(1)).enumerate() {
+                            k.matvec_i16(w, row(inputs, p, 8, 0, FEATURES), bias, y);
                         }
                     }
                     // One point (an MCU's block): read the sources in place, no copy.
                     (Weights::I8(w), None) if n == 1 => {
-                        k.matvec_i8(w, &acts[source_range(l.desc.sources, offs)], bias, acc);
+                        let x = acts.get(source_range(l.desc.sources, offs));
+                        k.matvec_i8(w, x.unwrap_or_default(), bias, acc);
                     }
                     // Gather each point's sources into rows of K, then one pass over the
                     // weights for the whole block.
                     (Weights::I8(w), None) => {
                         let src = source_range(l.desc.sources, offs);
-                        for (row, act) in gathered
-                            .chunks_exact_mut(k_in)
-                            .zip(acts.chunks_exact(acts_len))
-                            .take(n)
-                        {
-                            row.copy_from_slice(&act[src.clone()]);
+                        for (p, d) in gathered.chunks_exact_mut(k_in.max(1)).take(n).enumerate() {
+                            let x = row(acts, p, acts_len, src.start, k_in);
+                            if d.len() == x.len() {
+                                d.copy_from_slice(x);
+                            }
                         }
-                        k.matmat_i8(w, k_in, &gathered[..n * k_in], bias, acc, out_dim);
+                        let x = gathered.get(..n * k_in).unwrap_or_default();
+                        k.matmat_i8(w, k_in, x, bias, acc, out_dim);
                     }
                     (Weights::F32(_), None) => return Err(InferError::DType),
                 }
@@ -560,26 +592,25 @@ impl<'m> Plan<'m> {
                     scales: l.scales,
                     leaky: l.desc.leaky,
                 };
-                for (row, act) in acc
-                    .chunks_exact(out_dim)
-                    .zip(acts.chunks_exact_mut(acts_len))
-                {
-                    k.requantize(row, requant, &mut act[offs[i]..offs[i] + out_dim]);
+                let at = offset(i);
+                for (p, y) in acc.chunks_exact(out_dim.max(1)).enumerate() {
+                    k.requantize(y, requant, row_mut(acts, p, acts_len, at, out_dim));
                 }
             }
-            for act in acts.chunks_exact(acts_len).take(n) {
-                k.pool_i8(max, sum, &act[offs[last]..offs[last + 1]]);
+            let last_layer = offset(last)..offset(last + 1);
+            for act in acts.chunks_exact(acts_len.max(1)).take(n) {
+                k.pool_i8(max, sum, act.get(last_layer.clone()).unwrap_or_default());
             }
         }
         let n = points.len() as u32;
-        for (dst, &s) in a[pooled..2 * pooled].iter_mut().zip(sum.iter()) {
+        for (dst, &s) in a.iter_mut().skip(pooled).zip(sum.iter()) {
             *dst = quant::average(s, n, m.avg_scale());
         }
         let feats = fc_chain(m, (a, b), 2 * pooled, |_, l, x, out| {
             let (Weights::I8(w), Bias::I32(bias)) = (l.weights, l.bias) else {
                 return Err(InferError::DType);
             };
-            let acc = &mut acc[..out.len()];
+            let acc = acc.get_mut(..out.len()).unwrap_or_default();
             k.matvec_i8(w, x, bias, acc);
             let requant = Requant {
                 scales: l.scales,
@@ -620,20 +651,22 @@ fn fc_chain<'s, T>(
     width: usize,
     mut layer: impl FnMut(usize, &Layer<'_>, &[T], &mut [T]) -> Result<(), InferError>,
 ) -> Result<&'s [T], InferError> {
+    // The ping-pong buffers hold the widest FC layer (the plan sized the scratch so): the
+    // checked slicing never fails, and an MCU image has no panic path here.
+    let short = |needed: usize, got: usize| InferError::Scratch { needed, got };
     let (mut cur, mut width) = ((a, b), width);
     for i in model.fc_range() {
         let l = model.layer(i);
         let out_dim = l.desc.out_dim as usize;
-        layer(
-            i - model.point_layer_count(),
-            &l,
-            &cur.0[..width],
-            &mut cur.1[..out_dim],
-        )?;
+        let (x_len, y_len) = (cur.0.len(), cur.1.len());
+        let x = cur.0.get(..width).ok_or(short(width, x_len))?;
+        let y = cur.1.get_mut(..out_dim).ok_or(short(out_dim, y_len))?;
+        layer(i - model.point_layer_count(), &l, x, y)?;
         width = out_dim;
         cur = (cur.1, cur.0);
     }
-    Ok(&cur.0[..width])
+    let got = cur.0.len();
+    cur.0.get(..width).ok_or(short(width, got))
 }
 
 /// The two SimDR heads, shared by all joints: `head(l, f, out)` runs head layer `l` on one
@@ -647,11 +680,15 @@ fn heads<T, O>(
 ) -> Result<(), InferError> {
     for (kind, out) in [(0, out_x), (1, out_y)] {
         let l = model.layer(model.head_x_index() + kind);
-        let o = l.desc.out_dim as usize;
-        for (f, dst) in feats
-            .chunks_exact(model.head_dim())
-            .zip(out.chunks_exact_mut(o))
-        {
+        let (o, d) = (l.desc.out_dim as usize, model.head_dim());
+        // Indexed, as in `run_i8`: no chunk iterators, no panic path on an MCU.
+        for j in 0..model.joints() {
+            let (Some(f), Some(dst)) = (
+                feats.get(j * d..(j + 1) * d),
+                out.get_mut(j * o..(j + 1) * o),
+            ) else {
+                break;
+            };
             head(&l, f, dst)?;
         }
     }
