@@ -524,12 +524,16 @@ impl<'m> Plan<'m> {
         sum.fill(0);
         let offset = |i: usize| offs.get(i).copied().unwrap_or(0);
         // Point `p`'s row of `len` values in a buffer of rows `stride` apart, from `from` on.
+        // (Debug builds assert what `check` guarantees, so that tests still catch a sizing bug
+        // that the release build's empty fallback would hide.)
         fn row<T>(buf: &[T], p: usize, stride: usize, from: usize, len: usize) -> &[T] {
             let at = p * stride + from;
+            debug_assert!(at + len <= buf.len(), "row {p} outside its buffer");
             buf.get(at..at + len).unwrap_or_default()
         }
         fn row_mut<T>(buf: &mut [T], p: usize, stride: usize, from: usize, len: usize) -> &mut [T] {
             let at = p * stride + from;
+            debug_assert!(at + len <= buf.len(), "row {p} outside its buffer");
             buf.get_mut(at..at + len).unwrap_or_default()
         }
         for chunk in points.chunks(block.max(1)) {
@@ -579,6 +583,7 @@ impl<'m> Plan<'m> {
                         let src = source_range(l.desc.sources, offs);
                         for (p, d) in gathered.chunks_exact_mut(k_in.max(1)).take(n).enumerate() {
                             let x = row(acts, p, acts_len, src.start, k_in);
+                            debug_assert_eq!(d.len(), x.len());
                             if d.len() == x.len() {
                                 d.copy_from_slice(x);
                             }

@@ -518,8 +518,12 @@ impl<'a> Model<'a> {
         if d.in_dim == 0 || d.out_dim == 0 || d.in_dim > 1 << 16 || d.out_dim > 1 << 16 {
             return Err(err("dimensions must be in 1..=65536"));
         }
-        let n_w = d.in_dim as usize * d.out_dim as usize;
-        self.check_array(d.weights, n_w * weight_type.size(), i)?;
+        // Checked: on a 32-bit MCU, 65,536 × 65,536 weights would wrap to 0 bytes.
+        let w_bytes = (d.in_dim as usize)
+            .checked_mul(d.out_dim as usize)
+            .and_then(|n| n.checked_mul(weight_type.size()))
+            .ok_or(err("weights larger than the address space"))?;
+        self.check_array(d.weights, w_bytes, i)?;
         self.check_array(d.bias, d.out_dim as usize * 4, i)?;
         let int8 = self.dtype == DType::I8;
         let wants_scales = int8 && matches!(kind, LayerKind::Point | LayerKind::Fc);

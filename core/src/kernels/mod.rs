@@ -10,8 +10,9 @@
 //!
 //! As in tract-linalg, the portable table always exists and native kernels override it:
 //!
-//! - [`Kernels`] is a table for one [`Isa`]: int8 and i16 matvec, int8 matmat, the packed
-//!   int8 kernel where the ISA has one, and the requantization and pooling loops, with [`Kernels::reference`] (the portable fallback), [`Kernels::best`]
+//! - [`Kernels`] is a table for one [`Isa`]: int8 and i16 matvec, int8 matmat, and the
+//!   requantization and pooling loops (the f32 and packed kernels are chosen from the ISA at the
+//!   call, see below), with [`Kernels::reference`] (the portable fallback), [`Kernels::best`]
 //!   (chosen at compile time from `cfg(target_feature)`) and [`Kernels::detect`] (chosen at run
 //!   time: `cpuid` on x86_64, no `std` needed). A table can only be built for kernels the CPU
 //!   runs, so calling through it is safe.
@@ -54,7 +55,8 @@
 //!
 //! Row-major weights cost the x86 kernels a horizontal sum per output. [`packed`] defines a
 //! second layout, made once from the blob's rows into a buffer the caller owns, in which the
-//! lanes of a register are 16 outputs: [`Kernels::matmat_packed_i8`] over it needs no
+//! lanes of a register are 16 (or, on 256-bit registers, 8) outputs:
+//! [`Kernels::matmat_packed_i8`] over it needs no
 //! horizontal sums and reads each point's inputs in place; [`Kernels::matmat_packed_i16`] does
 //! the same for the int16 first layer, whose five-input rows cost the row-major kernel more in
 //! horizontal sums than in products. The AVX-512 VNNI and AVX-VNNI tables have native packed
@@ -68,8 +70,8 @@
 //! # Between the kernels
 //!
 //! The engine's requantization ([`reference::requantize_i8`]) and pooling
-//! ([`reference::pool_i8`]) loops are in the table too, and so is the f32 engine's kernel
-//! ([`reference::matvec_f32`], partial sums in a fixed order): the x86 tables compile the same
+//! ([`reference::pool_i8`]) loops are in the table too, and the f32 engine's kernel
+//! ([`reference::matvec_f32`], partial sums in a fixed order) is chosen by it: the x86 tables compile the same
 //! scalar code with AVX2 or AVX-512 enabled, so the compiler vectorizes it for those registers (a
 //! default `x86_64` build would otherwise get 128-bit SSE2 for them). IEEE arithmetic gives the
 //! same result in every lane, and the tests compare them with `==` anyway.
@@ -233,12 +235,14 @@ const X86_FASTEST_FIRST: [Isa; 4] = [
     Isa::X86Avx2,
 ];
 
-/// One int8 and one i16 matrix-vector kernel, one int8 matrix-matrix kernel, the packed
-/// kernel where the ISA has one, the requantization and pooling loops, and the f32
-/// matrix-vector kernel, every one bit-exact with [`reference`](mod@reference).
+/// One int8 and one i16 matrix-vector kernel, one int8 matrix-matrix kernel, and the
+/// requantization and pooling loops, every one bit-exact with [`reference`](mod@reference); the
+/// packed kernels where the ISA has them and the f32 matrix-vector kernel are chosen from the
+/// table's [`Isa`] when called (so an image links only those it calls).
 ///
-/// Only kernels the CPU runs can be put in a table (the fields are private), so the calls are
-/// safe. Pick once, keep the table:
+/// Only kernels the CPU runs can be put in a table, and a table's ISA is one the CPU runs (the
+/// fields are private; the constructors check), so the calls are safe. Pick once, keep the
+/// table:
 ///
 /// ```
 /// use evpose_core::kernels::Kernels;
@@ -386,7 +390,7 @@ impl Kernels {
         // Chosen here from the ISA, not stored in the table: an image that never runs the f32
         // engine (an int8 firmware) then links no f32 kernel.
         #[cfg(target_arch = "x86_64")]
-        if let Some(f) = x86::f32_kernel(self.isa) {
+        if let Some(f) = x86::f32_kernel(self) {
             return f(w, x, bias, out);
         }
         reference::matvec_f32(w, x, bias, out)
@@ -397,7 +401,7 @@ impl Kernels {
     /// reference, and the row-major kernels are the faster choice).
     pub fn has_packed(&self) -> bool {
         #[cfg(target_arch = "x86_64")]
-        if x86::packed_kernels(self.isa).is_some() {
+        if x86::packed_kernels(self).is_some() {
             return true;
         }
         false
@@ -407,7 +411,7 @@ impl Kernels {
     /// stored in the table, so that only an image that runs packed weights links them.
     fn packed_kernels(&self) -> Option<(MatmatPackedI8, MatmatPackedI16)> {
         #[cfg(target_arch = "x86_64")]
-        if let Some(k) = x86::packed_kernels(self.isa) {
+        if let Some(k) = x86::packed_kernels(self) {
             return Some(k);
         }
         None

@@ -20,7 +20,8 @@
 //! Rows are taken [`GROUP_ROWS`] (64) at a time; the inputs [`Lane::STEP`] at a time (a
 //! *step*: four int8 or two int16 inputs, the four bytes of one 32-bit lane). For row group `g`
 //! and step `s`, one block of [`BLOCK_BYTES`] (256) bytes holds, at bytes
-//! `(o mod 64)·4 + r·size`, the weight of row `o = 64g + (o mod 64)` and input `j = STEP·s + r`.
+//! `(o mod 64)·4 + r·size`, the weight of row `o = 64g + (o mod 64)` and input
+//! `j = Lane::STEP·s + r`.
 //! An int8 weight is stored as the unsigned byte `w + 128` (`w ^ 0x80`), the operand `vpdpbusd`
 //! wants unsigned; an int16 weight as itself, little-endian. Blocks are ordered by group, then
 //! step: a kernel streams a group's blocks front to back. Rows past the last and inputs past
@@ -159,7 +160,7 @@ pub type PackedI16<'a> = Packed<'a, i16>;
 impl<'a, T: Lane> Packed<'a, T> {
     /// Packs the `[rows][k]` weights `w` into the front of `buf`, returning the packed view and
     /// the unused rest of `buf`. `None` if `rows == 0`, `k == 0`, `w.len() != rows · k`, or
-    /// `buf` holds fewer than [`packed_len`]`(rows, k)` bytes.
+    /// `buf` holds fewer than [`packed_len_of`]`::<T>(rows, k)` bytes.
     pub fn pack(w: &[T], rows: usize, k: usize, buf: &'a mut [u8]) -> Option<(Self, &'a mut [u8])> {
         if rows == 0 || k == 0 || rows.checked_mul(k) != Some(w.len()) {
             return None;
@@ -196,9 +197,9 @@ impl<'a, T: Lane> Packed<'a, T> {
         }
     }
 
-    /// Views bytes already packed by [`PackedI8::pack`] for a `rows × k` layer (e.g. kept in a
+    /// Views bytes already packed by [`Packed::pack`] for a `rows × k` layer (e.g. kept in a
     /// buffer between calls). `None` unless `rows > 0`, `k > 0` and `bytes` is exactly
-    /// [`packed_len`]`(rows, k)` long. The bytes are not checked further: any bytes are some
+    /// [`packed_len_of`]`::<T>(rows, k)` long. The bytes are not checked further: any bytes are some
     /// weights.
     pub fn from_packed(bytes: &'a [u8], rows: usize, k: usize) -> Option<Self> {
         if k == 0 || rows == 0 || packed_len_of::<T>(rows, k) != Some(bytes.len()) {

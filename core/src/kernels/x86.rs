@@ -184,7 +184,8 @@ pub(super) const fn kernels(isa: Isa, features: Features) -> Option<Kernels> {
     if !features.supports(isa) {
         return None;
     }
-    // Invariant: the private wrappers below are stored only here, after the check above.
+    // Invariant: the private wrappers below are stored only here, after the check above, and
+    // `f32_kernel`/`packed_kernels` hand out theirs only for a table made here.
     let (i8, i16, i8mm): (super::MatvecI8, super::MatvecI16, super::MatmatI8) = match isa {
         Isa::X86Avx2 => (avx2_i8, avx2_i16, avx2_i8mm),
         Isa::X86AvxVnni => (avxvnni_i8, avxvnni_i16, avxvnni_i8mm),
@@ -208,10 +209,10 @@ pub(super) const fn kernels(isa: Isa, features: Features) -> Option<Kernels> {
 
 /// The f32 kernel of an x86 table's ISA (`None` for other ISAs).
 ///
-/// Invariant: `isa` is the ISA of a [`Kernels`], which [`kernels`] made only after checking
-/// that the CPU supports it, so the wrappers' features are there.
-pub(super) fn f32_kernel(isa: Isa) -> Option<super::MatvecF32> {
-    match isa {
+/// Takes the table, not an [`Isa`]: a table's ISA is one the CPU supports ([`kernels`] checked
+/// it, and no other code sets an x86 ISA), so the wrappers' features are there.
+pub(super) fn f32_kernel(k: &Kernels) -> Option<super::MatvecF32> {
+    match k.isa() {
         Isa::X86Avx2 | Isa::X86AvxVnni => Some(avx2_f32),
         Isa::X86Avx512Bw | Isa::X86Avx512Vnni => Some(avx512_f32),
         _ => None,
@@ -220,8 +221,10 @@ pub(super) fn f32_kernel(isa: Isa) -> Option<super::MatvecF32> {
 
 /// The native packed kernels (int8, int16) of an x86 table's ISA, if it has them; the same
 /// invariant as [`f32_kernel`].
-pub(super) fn packed_kernels(isa: Isa) -> Option<(super::MatmatPackedI8, super::MatmatPackedI16)> {
-    match isa {
+pub(super) fn packed_kernels(
+    k: &Kernels,
+) -> Option<(super::MatmatPackedI8, super::MatmatPackedI16)> {
+    match k.isa() {
         Isa::X86Avx512Vnni => Some((avx512vnni_i8pk, avx512vnni_i16pk)),
         Isa::X86AvxVnni => Some((avxvnni_i8pk, avxvnni_i16pk)),
         _ => None,

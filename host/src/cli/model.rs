@@ -275,12 +275,16 @@ pub fn bench_infer(a: &BenchInferArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&b)?);
     } else {
         println!(
-            "model {} ({} points, {:.3} GMAC per inference), one thread, median (fastest) of {} on {}",
+            "model {} ({} points, {:.3} GMAC per inference), one thread, median (fastest) of {}{}",
             a.model.display(),
             n,
             macs as f64 / 1e9,
             a.iterations,
-            b.cpu
+            if b.cpu.is_empty() {
+                String::new()
+            } else {
+                format!(" on {}", b.cpu)
+            }
         );
         let [tract, f32, i8] = b.fastest_ms;
         println!("  tract f32 {:>9.2} ms ({tract:.2})", b.tract_f32_ms);

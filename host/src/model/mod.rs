@@ -160,34 +160,40 @@ pub fn run_core_f32(blob: &AlignedBlob, points: &[[f32; 5]]) -> Result<Logits<f3
 
 /// The environment variable that picks a kernel family by name instead of the fastest this
 /// CPU runs (`reference`, `avx2`, `avxvnni`, `avx512bw`, `avx512vnni`): to measure or check
-/// one family on a CPU that has several.
+/// one family on a CPU that has several. Unset or empty: the fastest; a family this CPU lacks:
+/// a warning on stderr, then the fastest (the kernel name every benchmark prints says which ran).
 pub const KERNELS_ENV: &str = "EVPOSE_KERNELS";
 
 /// The int8 kernels for this CPU (detected once), or the family [`KERNELS_ENV`] names.
 pub fn kernels() -> &'static Kernels {
     static K: std::sync::OnceLock<Kernels> = std::sync::OnceLock::new();
     K.get_or_init(|| match std::env::var(KERNELS_ENV) {
-        Ok(name) => kernels_named(&name).unwrap_or_else(|e| {
-            let k = Kernels::detect();
-            eprintln!("warning: {e}; using {}", k.name());
-            k
-        }),
-        Err(_) => Kernels::detect(),
+        Err(std::env::VarError::NotPresent) => Kernels::detect(),
+        Ok(name) if name.is_empty() => Kernels::detect(),
+        named => {
+            let named = named.map_err(|_| anyhow!("{KERNELS_ENV} is not UTF-8"));
+            named.and_then(|n| kernels_named(&n)).unwrap_or_else(|e| {
+                let k = Kernels::detect();
+                eprintln!("warning: {e}; using {}", k.name());
+                k
+            })
+        }
     })
 }
 
 /// The kernel family called `name`, if this build has it and this CPU runs it.
 pub fn kernels_named(name: &str) -> Result<Kernels> {
-    let here: Vec<&str> = evpose_core::kernels::Isa::ALL
-        .iter()
-        .filter(|i| i.is_supported_here())
-        .map(|i| i.name())
-        .collect();
-    evpose_core::kernels::Isa::ALL
+    use evpose_core::kernels::Isa;
+    Isa::ALL
         .iter()
         .find(|i| i.name() == name)
         .and_then(|i| i.kernels())
         .ok_or_else(|| {
+            let here: Vec<&str> = Isa::ALL
+                .iter()
+                .filter(|i| i.is_supported_here())
+                .map(|i| i.name())
+                .collect();
             anyhow!(
                 "{KERNELS_ENV}={name}: not a kernel family this CPU runs (it runs: {})",
                 here.join(", ")

@@ -11,8 +11,9 @@
 //! | 512-bit | 64 rows, 4 registers of 16 lanes | 24 | 4 | 4 weight loads, 6 broadcasts, 24 `vpdpbusd` (1,536 MACs) |
 //! | 256-bit | 16 rows, 2 registers of 8 lanes (16 registers in all) | 12 | 2 | 2 weight loads, 6 broadcasts, 12 `vpdpbusd` (384 MACs) |
 //!
-//! No horizontal sums: lane `i` of accumulator `q` is output `LANES·q + i` of the slice, stored
-//! as is. Each point's step of inputs (four bytes) is broadcast from memory.
+//! (The MACs are int8's; an int16 `vpdpwssd` does half as many, two inputs per lane.) No
+//! horizontal sums: lane `i` of accumulator `q` is output `LANES·q + i` of the slice, stored as
+//! is. Each point's step of inputs (four bytes) is broadcast from memory.
 //!
 //! Tiles are the outer loop: one tile's points run through every row group, so a layer's
 //! weights stream through once per six points (from L2 for the paper's 512 KiB conv5) while
@@ -141,6 +142,7 @@ macro_rules! packed_loop {
                 out: &mut [i32],
                 out_stride: usize,
             ) {
+                const { assert!(S == T::STEP) };
                 let (points, rows) = packed_dims(
                     w,
                     x.len(),
