@@ -152,8 +152,12 @@ fn layer_offsets(model: &Model<'_>) -> ([usize; MAX_POINT_LAYERS + 1], usize) {
 fn source_range(sources: u32, offs: &[usize]) -> core::ops::Range<usize> {
     let first = sources.trailing_zeros() as usize; // ≥ 1 for layer sources
     let last = 31 - sources.leading_zeros() as usize;
-    let at = |i: usize| offs.get(i).copied().unwrap_or(0);
-    at(first.wrapping_sub(1))..at(last)
+    offset(offs, first.wrapping_sub(1))..offset(offs, last)
+}
+
+/// `offs[i]`, or 0 past the end (the plan rules that out; no panic path on an MCU).
+fn offset(offs: &[usize], i: usize) -> usize {
+    offs.get(i).copied().unwrap_or(0)
 }
 
 /// `s.split_at_mut(mid)`, or the scratch error (ruled out by [`Plan::check`], which a run
@@ -522,7 +526,6 @@ impl<'m> Plan<'m> {
         let (max, _) = split(a, pooled)?;
         max.fill(i8::MIN);
         sum.fill(0);
-        let offset = |i: usize| offs.get(i).copied().unwrap_or(0);
         // Point `p`'s row of `len` values in a buffer of rows `stride` apart, from `from` on.
         // (Debug builds assert what `check` guarantees, so that tests still catch a sizing bug
         // that the release build's empty fallback would hide.)
@@ -597,12 +600,12 @@ impl<'m> Plan<'m> {
                     scales: l.scales,
                     leaky: l.desc.leaky,
                 };
-                let at = offset(i);
+                let at = offset(offs, i);
                 for (p, y) in acc.chunks_exact(out_dim.max(1)).enumerate() {
                     k.requantize(y, requant, row_mut(acts, p, acts_len, at, out_dim));
                 }
             }
-            let last_layer = offset(last)..offset(last + 1);
+            let last_layer = offset(offs, last)..offset(offs, last + 1);
             for act in acts.chunks_exact(acts_len.max(1)).take(n) {
                 k.pool_i8(max, sum, act.get(last_layer.clone()).unwrap_or_default());
             }
