@@ -458,6 +458,25 @@ fn run_on_the_bundled_clip_follows_its_ground_truth() {
                 n2 += 1;
             }
         }
+        // The views' disagreement (the two-view no-body rule's input), recomputed: each
+        // camera's joints against the projection of the 3-D joints.
+        let (mut dsum, mut dn) = (0f64, 0u32);
+        for (c, cam) in w["cameras"].as_array().unwrap().iter().zip(&cams) {
+            for (p, x) in c["joints"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .zip(w["joints3d"].as_array().unwrap())
+            {
+                let Some(x) = x.as_array() else { continue };
+                let x = [0, 1, 2].map(|a| x[a].as_f64().unwrap());
+                let (u, v) = cam.project(x).unwrap();
+                dsum += (u - p[0].as_f64().unwrap()).hypot(v - p[1].as_f64().unwrap());
+                dn += 1;
+            }
+        }
+        let d = w["view_disagreement_px"].as_f64().unwrap();
+        assert!((d - dsum / f64::from(dn)).abs() < 1e-6, "{d}");
         for (j, p) in w["joints3d"].as_array().unwrap().iter().enumerate() {
             let Some(p) = p.as_array() else { continue };
             let l = label(j);

@@ -9,7 +9,9 @@ use evpose_core::smooth::SmoothParams;
 use crate::render::RunRenderer;
 use crate::run::output::PoseWriter;
 use crate::run::setup::{EngineKind, Plan, Request, DEFAULT_TIME_WINDOW_CAPACITY};
-use crate::run::{RunSummary, RunWindow, NO_BODY_CONFIDENCE};
+use crate::run::{
+    RunSummary, RunWindow, NO_BODY_CONFIDENCE, NO_BODY_VIEWS_BASE, NO_BODY_VIEWS_SLOPE,
+};
 
 /// On or off.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -268,8 +270,10 @@ fn print_summary(s: &RunSummary, synthetic: bool) {
     );
     if let Some(c) = s.mean_confidence {
         println!(
-            "mean joint confidence {c:.3}; {} of {} windows below {NO_BODY_CONFIDENCE} (no body)",
-            s.no_body_windows, s.windows
+            "mean joint confidence {c:.3}; {} of {} windows show no body ({})",
+            s.no_body_windows,
+            s.windows,
+            no_body_rule(s)
         );
     }
     if let Some(e) = &s.errors {
@@ -286,10 +290,23 @@ fn print_summary(s: &RunSummary, synthetic: bool) {
     }
     if s.no_body() {
         println!(
-            "no body seen: {} of {} windows have a mean joint confidence below {NO_BODY_CONFIDENCE}; \
-             their joints are guesses",
-            s.no_body_windows, s.windows
+            "no body seen: {} of {} windows ({}); their joints are guesses",
+            s.no_body_windows,
+            s.windows,
+            no_body_rule(s)
         );
+    }
+}
+
+/// The no-body rule the run applied, in words.
+fn no_body_rule(s: &RunSummary) -> String {
+    if s.views_compared {
+        format!(
+            "mean joint confidence below {NO_BODY_VIEWS_BASE} + {NO_BODY_VIEWS_SLOPE} ln(view \
+             disagreement px)"
+        )
+    } else {
+        format!("mean joint confidence below {NO_BODY_CONFIDENCE}")
     }
 }
 

@@ -165,6 +165,7 @@ mod tests {
             t_us: [100, 200],
             events: 30,
             no_body: Some(false),
+            view_disagreement_px: None,
             cameras: vec![CameraPose {
                 camera: 2,
                 events: 10,
