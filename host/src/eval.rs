@@ -54,6 +54,24 @@ impl Prediction {
     }
 }
 
+/// Each recording's samples of one camera, in window order: the sequences a filter runs over.
+fn sequences(ds: &Dataset) -> Vec<Vec<usize>> {
+    let mut sequences: BTreeMap<(u32, u8), Vec<usize>> = BTreeMap::new();
+    for i in 0..ds.len() {
+        sequences
+            .entry((ds.recording[i], ds.camera[i]))
+            .or_default()
+            .push(i);
+    }
+    sequences
+        .into_values()
+        .map(|mut rows| {
+            rows.sort_by_key(|&i| ds.window[i]);
+            rows
+        })
+        .collect()
+}
+
 /// The predictions after the confidence-gated temporal filter ([`evpose_core::smooth`]), run
 /// over each recording's windows in order, camera by camera, with each window's last event
 /// time as its time.
@@ -66,19 +84,11 @@ pub fn smooth(
     if predictions.len() != ds.len() {
         bail!("{} predictions for {} samples", predictions.len(), ds.len());
     }
-    let mut sequences: BTreeMap<(u32, u8), Vec<usize>> = BTreeMap::new();
-    for i in 0..ds.len() {
-        sequences
-            .entry((ds.recording[i], ds.camera[i]))
-            .or_default()
-            .push(i);
-    }
     let mut out: Vec<Joints2d> = predictions.iter().map(|p| p.joints).collect();
     let mut state = [AxisState::default(); 2 * JOINTS];
-    for rows in sequences.values_mut() {
-        rows.sort_by_key(|&i| ds.window[i]);
+    for rows in sequences(ds) {
         let mut f = Smoother::new(params, &mut state);
-        for &i in rows.iter() {
+        for &i in &rows {
             let p = &predictions[i];
             let joints = p.joints.map(|[x, y]| evpose_core::Joint2d {
                 x: x as u16,
@@ -86,6 +96,33 @@ pub fn smooth(
             });
             f.update(ds.span_us[i][1], &joints, &p.confidence, &mut out[i])
                 .map_err(|e| anyhow::anyhow!("{e}"))?;
+        }
+    }
+    Ok(out)
+}
+
+/// Windows on each side of the non-causal reference ([`centred_mean`]).
+pub const CENTRED_REFERENCE_WINDOWS: usize = 3;
+
+/// A non-causal reference for the temporal filter: each prediction replaced by the mean of
+/// the predictions `half` windows before and after it in its recording (fewer at the ends).
+/// It sees future windows, which no real-time filter can, so what it gains is about what any
+/// averaging over windows could: the part of the error that consecutive windows share (a
+/// still limb guessed the same way window after window) it cannot remove.
+pub fn centred_mean(ds: &Dataset, predictions: &[Joints2d], half: usize) -> Result<Vec<Joints2d>> {
+    if predictions.len() != ds.len() {
+        bail!("{} predictions for {} samples", predictions.len(), ds.len());
+    }
+    let mut out = predictions.to_vec();
+    for rows in sequences(ds) {
+        for (n, &i) in rows.iter().enumerate() {
+            let near = &rows[n.saturating_sub(half)..(n + half + 1).min(rows.len())];
+            for j in 0..JOINTS {
+                for a in 0..2 {
+                    let sum: f32 = near.iter().map(|&m| predictions[m][j][a]).sum();
+                    out[i][j][a] = sum / near.len() as f32;
+                }
+            }
         }
     }
     Ok(out)
@@ -156,6 +193,9 @@ pub struct EvalReport {
     /// The same figures after the temporal filter (`evpose eval --smooth`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub smoothed: Option<Box<EvalReport>>,
+    /// The same figures for the non-causal reference ([`centred_mean`], with `--smooth`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub centred_reference: Option<Box<EvalReport>>,
 }
 
 /// Euclidean 2-D error of each visible joint.
@@ -286,6 +326,7 @@ pub fn evaluate(
         samples_per_second,
         mean_confidence: None,
         smoothed: None,
+        centred_reference: None,
     })
 }
 

@@ -239,6 +239,27 @@ fn smoothing_reduces_jitter_and_ignores_unconfident_outliers() {
     );
 }
 
+/// The non-causal reference averages each camera's own windows, centred, fewer at the ends.
+#[test]
+fn centred_reference_averages_each_cameras_neighbours() {
+    let n = 10; // five windows of cameras 2 and 3
+    let ds = tiny_dataset(vec![[[0.0, 0.0]; JOINTS]; n], vec![[1; JOINTS]; n]);
+    // Camera 2 (even rows) at x = window; camera 3 (odd rows) at x = 100 + 10 · window.
+    let preds: Vec<eval::Joints2d> = (0..n)
+        .map(|i| {
+            let w = (i / 2) as f32;
+            [[if i % 2 == 0 { w } else { 100.0 + 10.0 * w }, 7.0]; JOINTS]
+        })
+        .collect();
+    let c = eval::centred_mean(&ds, &preds, 1).unwrap();
+    let x = |i: usize| c[i][0][0];
+    // Window 0: windows 0 and 1; window 2: 1, 2, 3; window 4: 3 and 4.
+    assert_eq!([x(0), x(4), x(8)], [0.5, 2.0, 3.5]);
+    assert_eq!([x(1), x(5), x(9)], [105.0, 120.0, 135.0]);
+    assert!(c.iter().all(|p| p.iter().all(|j| j[1] == 7.0)));
+    assert!(eval::centred_mean(&ds, &preds[1..], 1).is_err());
+}
+
 #[test]
 fn mpjpe_on_hand_computed_cases() {
     let cams = dhp19_cameras().unwrap();

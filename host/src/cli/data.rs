@@ -241,6 +241,16 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         report.smoothed = Some(Box::new(eval::evaluate(
             &ds, &smoothed, weights, front, name, rate,
         )?));
+        let half = eval::CENTRED_REFERENCE_WINDOWS;
+        let centred = eval::centred_mean(&ds, &joints, half)?;
+        let name = format!(
+            "{predictor}, non-causal reference: mean over the {} windows centred on each \
+             (sees the future; not a real-time filter)",
+            2 * half + 1
+        );
+        report.centred_reference = Some(Box::new(eval::evaluate(
+            &ds, &centred, weights, front, name, rate,
+        )?));
     }
     if let Some(path) = &a.json {
         std::fs::write(path, serde_json::to_string_pretty(&report)?)?;
@@ -318,12 +328,12 @@ fn print_report(r: &EvalReport) {
     if let Some(c) = r.mean_confidence {
         println!("mean joint confidence {c:.3}");
     }
-    if let Some(s) = &r.smoothed {
+    let gain = |a: Option<f64>, b: Option<f64>| match (a, b) {
+        (Some(a), Some(b)) if a > 0.0 => format!(" ({:+.1} %)", 100.0 * (b - a) / a),
+        _ => String::new(),
+    };
+    for s in [&r.smoothed, &r.centred_reference].into_iter().flatten() {
         println!("\n{}", s.predictor);
-        let gain = |a: Option<f64>, b: Option<f64>| match (a, b) {
-            (Some(a), Some(b)) if a > 0.0 => format!(" ({:+.1} %)", 100.0 * (b - a) / a),
-            _ => String::new(),
-        };
         println!(
             "MPJPE2D {} px{}; MPJPE3D {} mm{}; confidence-weighted {} mm{}",
             fmt(s.mpjpe2d_px),
