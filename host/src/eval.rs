@@ -101,14 +101,15 @@ pub fn smooth(
     Ok(out)
 }
 
-/// Windows on each side of the non-causal reference ([`centred_mean`]).
-pub const CENTRED_REFERENCE_WINDOWS: usize = 3;
+/// Windows on each side of each window in the non-causal reference ([`centred_mean`]).
+pub const CENTRED_REFERENCE_HALF: usize = 3;
 
 /// A non-causal reference for the temporal filter: each prediction replaced by the mean of
 /// the predictions `half` windows before and after it in its recording (fewer at the ends).
-/// It sees future windows, which no real-time filter can, so what it gains is about what any
-/// averaging over windows could: the part of the error that consecutive windows share (a
-/// still limb guessed the same way window after window) it cannot remove.
+/// It sees future windows, which no real-time filter can, so what it gains is roughly what
+/// averaging a few neighbouring windows gains: the part of the error that consecutive windows
+/// share (a still limb guessed the same way window after window) it cannot remove. Neighbours
+/// are taken by window index within one recording and camera.
 pub fn centred_mean(ds: &Dataset, predictions: &[Joints2d], half: usize) -> Result<Vec<Joints2d>> {
     if predictions.len() != ds.len() {
         bail!("{} predictions for {} samples", predictions.len(), ds.len());

@@ -345,7 +345,7 @@ impl RunRenderer {
             "  orange: prediction"
         };
         if w.no_body == Some(true) {
-            caption += "  NO BODY SEEN (low confidence)";
+            caption += "  NO BODY SEEN";
         }
         draw_text_mut(
             &mut img,

@@ -241,7 +241,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         report.smoothed = Some(Box::new(eval::evaluate(
             &ds, &smoothed, weights, front, name, rate,
         )?));
-        let half = eval::CENTRED_REFERENCE_WINDOWS;
+        let half = eval::CENTRED_REFERENCE_HALF;
         let centred = eval::centred_mean(&ds, &joints, half)?;
         let name = format!(
             "{predictor}, non-causal reference: mean over the {} windows centred on each \

@@ -298,15 +298,17 @@ fn print_summary(s: &RunSummary, synthetic: bool) {
     }
 }
 
-/// The no-body rule the run applied, in words.
+/// The no-body rule the run applied, in words ([`crate::run::no_body_seen`]).
 fn no_body_rule(s: &RunSummary) -> String {
-    if s.views_compared {
-        format!(
-            "mean joint confidence below {NO_BODY_VIEWS_BASE} + {NO_BODY_VIEWS_SLOPE} ln(view \
-             disagreement px)"
-        )
-    } else {
-        format!("mean joint confidence below {NO_BODY_CONFIDENCE}")
+    let views = format!(
+        "mean joint confidence below {NO_BODY_VIEWS_BASE} + {NO_BODY_VIEWS_SLOPE} ln(view \
+         disagreement px)"
+    );
+    let one = format!("mean joint confidence below {NO_BODY_CONFIDENCE}");
+    match s.views_compared {
+        0 => one,
+        n if n == s.windows => views,
+        n => format!("{views} in {n} windows, {one} in the others"),
     }
 }
 
