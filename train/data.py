@@ -15,7 +15,8 @@ MIRROR = [0, 2, 1, 4, 3, 6, 5, 8, 7, 10, 9, 12, 11]
 
 class Dataset:
     """An `evpose dataset` directory in memory: `points (S, N, 5)`, `label2d (S, J, 2)`,
-    `mask (S, J)`, `camera (S,)` and the manifest."""
+    `mask (S, J)`, `person (S,)` (1 = a person in the scene; all 1 without `person.npy`),
+    `camera (S,)` and the manifest."""
 
     def __init__(self, path, limit=None):
         path = Path(path)
@@ -25,6 +26,8 @@ class Dataset:
         self.points = torch.from_numpy(np.array(load("points.npy")[:n]))
         self.label2d = torch.from_numpy(np.array(load("label2d.npy")[:n]))
         self.mask = torch.from_numpy(np.array(load("mask.npy")[:n])).float()
+        self.person = (torch.from_numpy(np.array(load("person.npy")[:n])).float()
+                       if (path / "person.npy").exists() else torch.ones(n))
         self.camera = np.asarray(load("camera.npy")[:n])
 
     @staticmethod
@@ -37,6 +40,7 @@ class Dataset:
         out.points = torch.cat([p.points for p in parts])
         out.label2d = torch.cat([p.label2d for p in parts])
         out.mask = torch.cat([p.mask for p in parts])
+        out.person = torch.cat([p.person for p in parts])
         out.camera = np.concatenate([p.camera for p in parts])
         return out
 
@@ -45,7 +49,7 @@ class Dataset:
 
     def batch(self, idx, points=None, generator=None, shift=0, flip=False,
               size=(346, 260)):
-        """Inputs `(B, 5, points)` and labels of rows `idx`. With fewer `points` than stored, a
+        """Inputs `(B, 5, points)`, labels, masks and person flags of rows `idx`. With fewer `points` than stored, a
         random subset per sample (the stored rows are already a uniform sample of the window,
         so a subset of them is one too).
 
@@ -75,7 +79,7 @@ class Dataset:
             inside = ((lab[..., 0] >= 0) & (lab[..., 0] < size[0]) & (lab[..., 1] >= 0)
                       & (lab[..., 1] < size[1]))
             mask = mask * inside.float()
-        return x.transpose(1, 2).contiguous(), lab, mask
+        return x.transpose(1, 2).contiguous(), lab, mask, self.person[idx].clone()
 
 
 def simdr_target(coord, size, sigma=SIGMA):
@@ -88,15 +92,33 @@ def simdr_target(coord, size, sigma=SIGMA):
     return (g - lo) / (hi - lo).clamp_min(1e-12)
 
 
-def simdr_loss(logits_x, logits_y, label2d, mask):
+def uniform_target(size, sigma=SIGMA):
+    """The label of a scene without a person: a constant vector `(size,)` with the mass of a
+    Gaussian label (about sigma * sqrt(2 pi)), so that its loss weighs like a joint's."""
+    mass = simdr_target(torch.tensor([size // 2], dtype=torch.float32), size, sigma).sum()
+    return torch.full((size,), float(mass) / size)
+
+
+def simdr_loss(logits_x, logits_y, label2d, mask, person=None):
     """KL divergence between the softmax of each SimDR vector and its label, averaged over the
-    bins, weighted by visibility and averaged over joints and samples."""
+    bins, weighted by visibility and averaged over joints and samples.
+
+    Rows whose `person` is 0 (person-free windows, `evpose dataset --person-free`) have no
+    label: every joint of them is pulled towards the uniform distribution
+    ([`uniform_target`]) with weight 1, which teaches the network to spread its mass, and so
+    to lower its confidence, when it sees no body."""
     total = 0.0
     for logits, axis in ((logits_x, 0), (logits_y, 1)):
         t = simdr_target(label2d[..., axis], logits.size(-1))
+        w = mask
+        if person is not None:
+            absent = person < 0.5
+            t = torch.where(absent[:, None, None],
+                            uniform_target(logits.size(-1)).to(t.device), t)
+            w = torch.where(absent[:, None], torch.ones_like(mask), mask)
         logp = torch.log_softmax(logits, dim=-1)
         kl = (torch.xlogy(t, t) - t * logp).mean(dim=-1)
-        total = total + (kl * mask).mean()
+        total = total + (kl * w).mean()
     return total
 
 

@@ -38,15 +38,22 @@ for step in $steps; do
     "$evpose" sim --out rec-train2 --seed 2 --subjects 12 --seconds 2 --movements all --split train
     "$evpose" sim --out rec-val --seed 500 --subjects 1 --seconds 1 --movements all --split test
     "$evpose" sim --out rec-test --seed 1000 --subjects 1 --seconds 2 --movements all --split test
+    # Scenes without a person (bouncing balls, a spinning stick) for the MCU model: 40 "subjects"
+    # of seed 4000, written with --person-free (no label; train.py pulls them to uniform).
+    "$evpose" sim --out np-train --seed 4000 --subjects 40 --seconds 2 --movements no-person \
+      --split train
     "$evpose" dataset --recordings rec-train --out ds-train --split train
     "$evpose" dataset --recordings rec-train2 --out ds-train2 --split train
+    "$evpose" dataset --recordings np-train --out ds-np --split train --person-free
     "$evpose" dataset --recordings rec-val --out ds-val --split test
     for n in 2048 1024 512 256 128; do
       "$evpose" dataset --recordings rec-test --out ds-test-$n --points $n --split test
     done
     ;;
   mcu)
-    train --widths 16 16 32 64 128 128 32 --points 256 --epochs 12 --batch 32 --lr 1e-3 \
+    # With the person-free windows of ds-np, so that its confidence drops on scenes without a
+    # body (README: "Confidence and scenes without a person"); this --data replaces train()'s.
+    train --data ds-train ds-train2 ds-np --widths 16 16 32 64 128 128 32 --points 256 --epochs 12 --batch 32 --lr 1e-3 \
       --lr-steps 8 10 --out mcu.onnx --log mcu.json
     ;;
   paper)

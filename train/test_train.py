@@ -21,7 +21,8 @@ TINY = {
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
-    """24 samples of 64 points in the layout `evpose dataset` writes (random clouds, labels)."""
+    """24 samples of 64 points in the layout `evpose dataset` writes (random clouds, labels; one
+    person-free)."""
     d = tmp_path_factory.mktemp("ds")
     rng = np.random.default_rng(7)
     s, n, j = 24, 64, models.JOINTS
@@ -35,6 +36,9 @@ def tiny(tmp_path_factory):
     mask[0, 3] = 0
     np.save(d / "mask.npy", mask)
     np.save(d / "camera.npy", np.full(s, 2, np.uint8))
+    person = np.ones(s, np.uint8)
+    person[5] = 0  # a person-free window: trained towards uniform SimDR vectors
+    np.save(d / "person.npy", person)
     (d / "manifest.json").write_text(json.dumps({"points": n, "samples": s}))
     return d
 
@@ -56,6 +60,28 @@ def test_loss_ignores_masked_joints():
     assert torch.isclose(data.simdr_loss(lx, ly, lab2, mask),
                          data.simdr_loss(lx, ly, lab, mask))
     assert not torch.isclose(base, data.simdr_loss(lx, ly, lab2, torch.ones(1, 13)))
+
+
+def test_person_free_rows_are_pulled_to_uniform():
+    """A person-free row's loss ignores its (zero) label and mask and is smallest at uniform
+    logits; rows with a person are unaffected by the flag."""
+    lab = torch.full((2, 13, 2), 50.0)
+    mask = torch.zeros(2, 13)
+    mask[0] = 1
+    person = torch.tensor([1.0, 0.0])
+    peaked_x, peaked_y = torch.randn(2, 13, 346), torch.randn(2, 13, 260)
+    flat_x, flat_y = peaked_x.clone(), peaked_y.clone()
+    flat_x[1], flat_y[1] = 0.0, 0.0
+    # Row 0 (a person) alone decides the loss without the flag: row 1 is all masked.
+    assert torch.isclose(data.simdr_loss(peaked_x, peaked_y, lab, mask),
+                         data.simdr_loss(flat_x, flat_y, lab, mask))
+    # With the flag, row 1 counts, and uniform logits beat random ones there.
+    assert (data.simdr_loss(flat_x, flat_y, lab, mask, person)
+            < data.simdr_loss(peaked_x, peaked_y, lab, mask, person))
+    # The target's mass is a Gaussian label's, so a missing person weighs like a joint.
+    u = data.uniform_target(346)
+    g = data.simdr_target(torch.tensor([173.0]), 346)[0]
+    assert torch.isclose(u.sum(), g.sum()) and bool((u == u[0]).all())
 
 
 @pytest.mark.parametrize("backbone", sorted(TINY))
@@ -98,7 +124,7 @@ def test_augmentation_moves_points_and_labels_together(tmp_path):
     gen = torch.Generator().manual_seed(0)
     flipped = 0
     for _ in range(4):
-        x, l2, mask = ds.batch(torch.arange(s), None, gen, shift=20, flip=True)
+        x, l2, mask, _ = ds.batch(torch.arange(s), None, gen, shift=20, flip=True)
         for b in range(s):
             for k in range(j):
                 if mask[b, k] == 0:

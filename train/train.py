@@ -68,7 +68,7 @@ def evaluate(model, ds, points, device, batch=64):
     with torch.no_grad():
         for s in range(0, len(ds), batch):
             idx = torch.arange(s, min(s + batch, len(ds)))
-            x, lab, mask = ds.batch(idx, points, gen)
+            x, lab, mask, _ = ds.batch(idx, points, gen)
             lx, ly = model(x.to(device))
             e, n = data.mpjpe2d(data.decode(lx, ly).cpu(), lab, mask)
             total, count = total + e, count + n
@@ -95,8 +95,9 @@ def train(args):
     if args.init:
         model.load_state_dict(torch.load(args.init, map_location=device)["state"])
     params = sum(p.numel() for p in model.parameters())
-    print(f"{args.backbone}: {params / 1e6:.3f} M parameters; {len(ds)} training samples, "
-          f"{args.points} points, device {device}", flush=True)
+    absent = int((ds.person < 0.5).sum())
+    print(f"{args.backbone}: {params / 1e6:.3f} M parameters; {len(ds)} training samples "
+          f"({absent} person-free), {args.points} points, device {device}", flush=True)
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     steps = args.lr_steps if args.lr_steps is not None else [args.epochs // 2,
                                                              args.epochs * 2 // 3]
@@ -114,9 +115,9 @@ def train(args):
             idx = order[b * args.batch:(b + 1) * args.batch]
             if len(idx) < 2:  # BatchNorm needs two samples
                 continue
-            x, lab, mask = ds.batch(idx, args.points, gen, args.shift, args.flip)
+            x, lab, mask, person = ds.batch(idx, args.points, gen, args.shift, args.flip)
             lx, ly = model(x.to(device))
-            loss = data.simdr_loss(lx, ly, lab.to(device), mask.to(device))
+            loss = data.simdr_loss(lx, ly, lab.to(device), mask.to(device), person.to(device))
             opt.zero_grad()
             loss.backward()
             opt.step()

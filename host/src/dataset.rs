@@ -16,6 +16,11 @@
 //! preprocessing. Windows with fewer than [`MIN_TRAIN_POINTS`] points are dropped from the
 //! training split only, as the paper does.
 //!
+//! Recordings without a person (the simulator's `no-person` scenes) have no label and are
+//! skipped, unless [`DatasetOptions::person_free`] asks for their windows: then each is written
+//! with `person = 0`, a zero label and an all-zero mask, for a trainer that teaches the network
+//! what a scene without a body looks like (`train.py` gives them uniform SimDR targets).
+//!
 //! Output, a directory (row `i` of every array is one window of one camera):
 //!
 //! | file | shape, dtype | |
@@ -30,6 +35,7 @@
 //! | `recording.npy` | (W,) u32 | index into the manifest's `recordings` |
 //! | `window.npy` | (W,) u32 | the window's index in its recording (cameras of one window share it) |
 //! | `span_us.npy` | (W, 2) i64 | first and last event time of the window, µs |
+//! | `person.npy` | (W,) u8 | 1 = a person is in the scene; 0 = a person-free window (`--person-free`) |
 //! | `manifest.json` | | rule, N, cameras, split, counts, movements, recordings |
 //!
 //! Recordings are processed in parallel (rayon) and written in order; memory holds one
@@ -98,6 +104,9 @@ pub struct DatasetOptions {
     /// DHP19's preprocessing ([`dhp19_filter`]): `None` applies it to real DHP19 recordings
     /// only.
     pub dhp19_filters: Option<bool>,
+    /// Also write the windows of recordings without a person (`person = 0`, zero labels, all
+    /// joints masked); otherwise such recordings are skipped.
+    pub person_free: bool,
 }
 
 /// A recording with ground truth, wherever it came from.
@@ -139,6 +148,8 @@ pub struct Sample {
     pub window: u32,
     /// First and last event time, µs.
     pub span_us: [i64; 2],
+    /// Whether a person is in the scene (false: a person-free window, no label).
+    pub person: bool,
 }
 
 /// The manifest of a dataset (`manifest.json`).
@@ -164,6 +175,9 @@ pub struct DatasetManifest {
     pub recordings: Vec<String>,
     /// Whether the data is synthetic (`evpose sim`), not DHP19.
     pub synthetic: bool,
+    /// Samples of person-free windows among `samples` (`--person-free`).
+    #[serde(default)]
+    pub person_free: u64,
 }
 
 /// The recordings of a directory: an `evpose sim` set (its manifest), or real DHP19 files
@@ -433,20 +447,24 @@ pub fn windows(
                     camera: u8,
                     cam: &Camera,
                     evs: &[Event],
-                    label: [[f32; 3]; JOINTS],
+                    label: Option<[[f32; 3]; JOINTS]>,
                     rng: &mut evpose_core::sample::SampleRng|
      -> Result<()> {
         let (points, cloud_points) = cloud(&mut raster, evs, opts.points, rng)?;
-        let (label2d, mask) = project_label(cam, &label);
+        // A person-free window: no label, every joint masked.
+        let (label2d, mask) = label.map_or(([[0.0; 2]; JOINTS], [0; JOINTS]), |l| {
+            project_label(cam, &l)
+        });
         out.push(Sample {
             points,
             cloud_points,
             label2d,
             mask,
-            gt3d: label,
+            gt3d: label.unwrap_or_default(),
             camera,
             window,
             span_us: [t0, t1],
+            person: label.is_some(),
         });
         Ok(())
     };
@@ -457,9 +475,10 @@ pub fn windows(
                     break; // a short tail is not a window
                 }
                 let span = (chunk[0].1.t, chunk[chunk.len() - 1].1.t);
-                let Some(label) = mean_label(&source.gt, gt_t0, span) else {
+                let label = mean_label(&source.gt, gt_t0, span);
+                if label.is_none() && !opts.person_free {
                     continue;
-                };
+                }
                 for (c, cam) in cameras {
                     let evs: Vec<Event> = chunk
                         .iter()
@@ -478,12 +497,15 @@ pub fn windows(
                     .map(|&(_, e)| e)
                     .collect();
                 for (w, chunk) in mine.chunks(LAST_WINDOW_EVENTS).enumerate() {
-                    if chunk.len() < LAST_WINDOW_EVENTS || source.gt.is_empty() {
+                    if chunk.len() < LAST_WINDOW_EVENTS
+                        || (source.gt.is_empty() && !opts.person_free)
+                    {
                         break;
                     }
                     let span = (chunk[0].t, chunk[chunk.len() - 1].t);
-                    let k = nearest_sample(source.gt.len(), gt_t0, span.1);
-                    push(w as u32, span, *c, cam, chunk, source.gt[k], &mut rng)?;
+                    let label = (!source.gt.is_empty())
+                        .then(|| source.gt[nearest_sample(source.gt.len(), gt_t0, span.1)]);
+                    push(w as u32, span, *c, cam, chunk, label, &mut rng)?;
                 }
             }
         }
@@ -503,6 +525,7 @@ struct Writers {
     recording: NpyAppender<u32>,
     window: NpyAppender<u32>,
     span: NpyAppender<i64>,
+    person: NpyAppender<u8>,
 }
 
 impl Writers {
@@ -519,6 +542,7 @@ impl Writers {
             recording: NpyAppender::create(&out.join("recording.npy"), &[])?,
             window: NpyAppender::create(&out.join("window.npy"), &[])?,
             span: NpyAppender::create(&out.join("span_us.npy"), &[2])?,
+            person: NpyAppender::create(&out.join("person.npy"), &[])?,
         })
     }
 
@@ -532,7 +556,8 @@ impl Writers {
         self.movement.append(&[movement])?;
         self.recording.append(&[recording])?;
         self.window.append(&[s.window])?;
-        self.span.append(&s.span_us)
+        self.span.append(&s.span_us)?;
+        self.person.append(&[u8::from(s.person)])
     }
 
     fn finish(self) -> Result<u64> {
@@ -547,6 +572,7 @@ impl Writers {
             self.recording.finish()?,
             self.window.finish()?,
             self.span.finish()?,
+            self.person.finish()?,
         ] {
             if rows != n {
                 bail!("dataset arrays disagree on their row count");
@@ -600,6 +626,7 @@ pub fn build(
     }
     let mut writers = Writers::create(out, opts.points)?;
     let mut dropped = 0u64;
+    let mut person_free = 0u64;
     let done = std::sync::atomic::AtomicUsize::new(0);
     // Parallel over recordings, written in order, a few recordings at a time.
     let chunk = 2 * rayon::current_num_threads().max(1);
@@ -627,6 +654,7 @@ pub fn build(
                     dropped += 1;
                     continue;
                 }
+                person_free += u64::from(!sample.person);
                 writers.append(&sample, s.subject, movement, (c * chunk + i) as u32)?;
             }
         }
@@ -646,6 +674,7 @@ pub fn build(
             .map(|s| s.events.display().to_string())
             .collect(),
         synthetic: sources.iter().all(|s| !s.real),
+        person_free,
     };
     let path = out.join("manifest.json");
     std::fs::write(&path, serde_json::to_string_pretty(&manifest)?)
@@ -676,6 +705,9 @@ pub struct Dataset {
     pub window: Vec<u32>,
     /// First and last event time of each row's window, µs.
     pub span_us: Vec<[i64; 2]>,
+    /// 1 where a person is in the scene, 0 for a person-free window (all 1 in a dataset
+    /// written before `person.npy` existed).
+    pub person: Vec<u8>,
 }
 
 impl Dataset {
@@ -722,6 +754,11 @@ impl Dataset {
                 .chunks_exact(2)
                 .map(|t| [t[0] as i64, t[1] as i64])
                 .collect(),
+            person: if dir.join("person.npy").exists() {
+                read("person.npy")?.into_iter().map(|v| v as u8).collect()
+            } else {
+                vec![1; manifest.samples as usize]
+            },
             manifest,
         };
         let n = ds.manifest.samples as usize;
@@ -734,6 +771,7 @@ impl Dataset {
             ds.recording.len(),
             ds.window.len(),
             ds.span_us.len(),
+            ds.person.len(),
         ]
         .iter()
         .any(|&l| l != n)

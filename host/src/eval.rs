@@ -252,6 +252,10 @@ pub fn evaluate(
                 }
             }
         }
+        // A person-free window has no 3-D label (and no visible joint for the 2-D error).
+        if ds.person[i] == 0 {
+            continue;
+        }
         if let Some(side) = front.iter().position(|(c, _)| *c == ds.camera[i]) {
             pairs.entry((ds.recording[i], ds.window[i])).or_default()[side] = Some(i);
         }

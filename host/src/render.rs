@@ -103,6 +103,7 @@ pub fn ground_truth_frame(
         split: SplitFilter::All,
         seed: 0,
         dhp19_filters: Some(false),
+        person_free: false,
     };
     let samples = dataset::windows(&source, &events, &[(camera, cam)], &opts, 0)?;
     let Some(sample) = samples.into_iter().find(|s| s.window as usize == window) else {

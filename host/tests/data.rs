@@ -127,6 +127,7 @@ fn mean_and_last_label_windows_of_a_hand_built_recording() {
         split: SplitFilter::All,
         seed: 0,
         dhp19_filters: None,
+        person_free: false,
     };
     // Mean Label: two full 30,000-event windows (the 5,000-event tail is not one), each in
     // cameras 2 and 3: 7,500 events each.
@@ -166,6 +167,44 @@ fn mean_and_last_label_windows_of_a_hand_built_recording() {
     assert_eq!(s[3].span_us, [mine[7_500], mine[14_999]]);
 }
 
+/// A recording without a person is skipped unless `person_free` asks for its windows; then
+/// each is written unlabelled (`person` false, every joint masked), under both window rules.
+#[test]
+fn person_free_windows_only_on_request() {
+    let (mut source, events) = hand_built();
+    source.gt.clear();
+    let cameras: Vec<_> = [2u8, 3]
+        .iter()
+        .map(|&c| (c, dhp19_cameras().unwrap()[usize::from(c)]))
+        .collect();
+    for label in [LabelRule::Mean, LabelRule::Last] {
+        let mut opts = DatasetOptions {
+            label,
+            points: 64,
+            cameras: vec![2, 3],
+            split: SplitFilter::All,
+            seed: 0,
+            dhp19_filters: None,
+            person_free: false,
+        };
+        let s = dataset::windows(&source, &events, &cameras, &opts, 0).unwrap();
+        assert!(
+            s.is_empty(),
+            "{label:?}: {} samples without a person",
+            s.len()
+        );
+        opts.person_free = true;
+        let s = dataset::windows(&source, &events, &cameras, &opts, 0).unwrap();
+        assert_eq!(s.len(), 4, "{label:?}");
+        for sample in &s {
+            assert!(!sample.person);
+            assert_eq!(sample.mask, [0; JOINTS]);
+            assert_eq!(sample.points.len(), 64);
+            assert!(sample.cloud_points > 0);
+        }
+    }
+}
+
 fn tiny_dataset(label2d: Vec<[[f32; 2]; JOINTS]>, mask: Vec<[u8; JOINTS]>) -> Dataset {
     let n = label2d.len();
     Dataset {
@@ -181,6 +220,7 @@ fn tiny_dataset(label2d: Vec<[[f32; 2]; JOINTS]>, mask: Vec<[u8; JOINTS]>) -> Da
             movements: vec!["m".into()],
             recordings: vec!["r".into()],
             synthetic: true,
+            person_free: 0,
         },
         label2d,
         mask,
@@ -193,6 +233,7 @@ fn tiny_dataset(label2d: Vec<[[f32; 2]; JOINTS]>, mask: Vec<[u8; JOINTS]>) -> Da
         span_us: (0..n)
             .map(|i| [(i / 2) as i64 * 33_000, (i / 2) as i64 * 33_000 + 30_000])
             .collect(),
+        person: vec![1; n],
     }
 }
 
@@ -376,6 +417,7 @@ fn a_dataset_round_trips_through_its_files() {
         split: SplitFilter::All,
         seed: 1,
         dhp19_filters: None,
+        person_free: false,
     };
     let m = dataset::build(&sim, &out, &dopts, |_, _| {}).unwrap();
     let ds = Dataset::open(&out).unwrap();

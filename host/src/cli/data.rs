@@ -43,6 +43,11 @@ pub struct DatasetArgs {
     /// filter): `on`/`off`; default on for real DHP19 files, off for simulated ones.
     #[arg(long)]
     pub dhp19_filters: Option<OnOff>,
+    /// Also write the windows of recordings without a person (the simulator's `no-person`
+    /// scenes) with `person.npy` = 0, a zero label and every joint masked, for training a
+    /// model to spread its SimDR mass when it sees no body. Without it they are skipped.
+    #[arg(long)]
+    pub person_free: bool,
 }
 
 /// A switch.
@@ -74,6 +79,7 @@ pub fn dataset(a: &DatasetArgs) -> Result<()> {
         split: a.split,
         seed: a.seed,
         dhp19_filters: a.dhp19_filters.map(|s| s == OnOff::On),
+        person_free: a.person_free,
     };
     let start = Instant::now();
     let bar = bar(0, "recordings");
