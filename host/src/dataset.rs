@@ -423,7 +423,8 @@ fn cloud(
     Ok((picked.to_vec(), window.len()))
 }
 
-/// The labelled windows of one recording (`index` seeds its sampler).
+/// The labelled windows of one recording (`index` seeds its sampler); none for a recording
+/// without a person unless [`DatasetOptions::person_free`] asks for them.
 pub fn windows(
     source: &Source,
     events: &[(u8, Event)],
@@ -431,6 +432,10 @@ pub fn windows(
     opts: &DatasetOptions,
     index: usize,
 ) -> Result<Vec<Sample>> {
+    // A recording without a person has no label: its windows only on request.
+    if source.gt.is_empty() && !opts.person_free {
+        return Ok(Vec::new());
+    }
     let mut rng = rng_from_seed(opts.seed ^ (index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
     let capacity = match opts.label {
         LabelRule::Mean => MEAN_WINDOW_EVENTS,
@@ -476,9 +481,6 @@ pub fn windows(
                 }
                 let span = (chunk[0].1.t, chunk[chunk.len() - 1].1.t);
                 let label = mean_label(&source.gt, gt_t0, span);
-                if label.is_none() && !opts.person_free {
-                    continue;
-                }
                 for (c, cam) in cameras {
                     let evs: Vec<Event> = chunk
                         .iter()
@@ -497,9 +499,7 @@ pub fn windows(
                     .map(|&(_, e)| e)
                     .collect();
                 for (w, chunk) in mine.chunks(LAST_WINDOW_EVENTS).enumerate() {
-                    if chunk.len() < LAST_WINDOW_EVENTS
-                        || (source.gt.is_empty() && !opts.person_free)
-                    {
+                    if chunk.len() < LAST_WINDOW_EVENTS {
                         break;
                     }
                     let span = (chunk[0].t, chunk[chunk.len() - 1].t);

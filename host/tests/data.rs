@@ -1,6 +1,7 @@
 //! Ground truth end to end: `evpose sim` files read back by the readers, the Mean/Last Label
 //! arithmetic on a hand-built recording, and MPJPE on hand-computed cases.
 
+use evpose_core::geometry::Camera;
 use evpose_core::Event;
 use evpose_host::dataset::{
     self, mean_label, nearest_sample, project_label, Dataset, DatasetManifest, DatasetOptions,
@@ -113,15 +114,11 @@ fn hand_built() -> (Source, Vec<(u8, Event)>) {
     (source, events)
 }
 
-#[test]
-fn mean_and_last_label_windows_of_a_hand_built_recording() {
-    let (source, events) = hand_built();
-    let cameras: Vec<_> = [2u8, 3]
-        .iter()
-        .map(|&c| (c, dhp19_cameras().unwrap()[usize::from(c)]))
-        .collect();
-    let mut opts = DatasetOptions {
-        label: LabelRule::Mean,
+/// DHP19's front cameras and the options the hand-built recording's tests cut it with.
+fn hand_built_setup(label: LabelRule) -> (Vec<(u8, Camera)>, DatasetOptions) {
+    let cams = dhp19_cameras().unwrap();
+    let options = DatasetOptions {
+        label,
         points: 64,
         cameras: vec![2, 3],
         split: SplitFilter::All,
@@ -129,6 +126,13 @@ fn mean_and_last_label_windows_of_a_hand_built_recording() {
         dhp19_filters: None,
         person_free: false,
     };
+    (vec![(2, cams[2]), (3, cams[3])], options)
+}
+
+#[test]
+fn mean_and_last_label_windows_of_a_hand_built_recording() {
+    let (source, events) = hand_built();
+    let (cameras, mut opts) = hand_built_setup(LabelRule::Mean);
     // Mean Label: two full 30,000-event windows (the 5,000-event tail is not one), each in
     // cameras 2 and 3: 7,500 events each.
     let s = dataset::windows(&source, &events, &cameras, &opts, 0).unwrap();
@@ -173,20 +177,8 @@ fn mean_and_last_label_windows_of_a_hand_built_recording() {
 fn person_free_windows_only_on_request() {
     let (mut source, events) = hand_built();
     source.gt.clear();
-    let cameras: Vec<_> = [2u8, 3]
-        .iter()
-        .map(|&c| (c, dhp19_cameras().unwrap()[usize::from(c)]))
-        .collect();
     for label in [LabelRule::Mean, LabelRule::Last] {
-        let mut opts = DatasetOptions {
-            label,
-            points: 64,
-            cameras: vec![2, 3],
-            split: SplitFilter::All,
-            seed: 0,
-            dhp19_filters: None,
-            person_free: false,
-        };
+        let (cameras, mut opts) = hand_built_setup(label);
         let s = dataset::windows(&source, &events, &cameras, &opts, 0).unwrap();
         assert!(
             s.is_empty(),
@@ -343,6 +335,18 @@ fn mpjpe_on_hand_computed_cases() {
     .unwrap();
     assert_eq!(r.windows, 1);
     assert!(r.mpjpe3d_mm.unwrap() < 0.5, "{:?}", r.mpjpe3d_mm);
+    // A person-free window (`--person-free`: no label, every joint masked) stays out of the 3-D
+    // error: counted, its zero label would be ~900 mm from these joints.
+    let mut mixed = tiny_dataset(
+        vec![label; 4],
+        vec![[1; JOINTS], [1; JOINTS], [0; JOINTS], [0; JOINTS]],
+    );
+    mixed.gt3d = vec![[x; JOINTS], [x; JOINTS], pose(0.0), pose(0.0)];
+    mixed.person = vec![1, 1, 0, 0];
+    let views = [proj(&cams[2]), proj(&cams[3])];
+    let r = eval::evaluate(&mixed, &views.repeat(2), None, front, "t".into(), 0.0).unwrap();
+    assert_eq!(r.windows, 1);
+    assert!(r.mpjpe3d_mm.unwrap() < 0.5, "{:?}", r.mpjpe3d_mm);
     // Confidence-weighted: exact views stay exact whatever the weights; with camera 3's view
     // off by 8 px, trusting camera 2 (0.9 against 0.1) is closer than trusting both equally.
     let conf = [[0.9f32; JOINTS], [0.1; JOINTS]];
@@ -438,6 +442,7 @@ fn a_dataset_round_trips_through_its_files() {
             (w.label2d, w.mask, w.gt3d)
         );
         assert_eq!((ds.camera[i], ds.window[i]), (w.camera, w.window));
+        assert_eq!(ds.person[i], u8::from(w.person));
     }
     // The test split of a training set is empty.
     let test = dataset::build(
