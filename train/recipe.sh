@@ -6,8 +6,8 @@
 #   steps: data mcu paper dgcnn point-transformer quantize eval (default: all, in order)
 # Needs: a release `evpose` (built here if absent), and train/requirements.txt installed
 # (python: $PYTHON, default python3). WORKDIR holds ~2.5 GB of recordings and datasets.
-# On the 2-core development VM (AMD EPYC, no GPU), measured: data 11 min (6 + 12 subjects,
-# 612 recordings, 43,909 training samples), mcu 13 min, paper 45 min, dgcnn 38 min and
+# On the 2-core development VM (AMD EPYC, no GPU), measured: data 11.4 min (6 + 12 subjects,
+# 612 recordings, 43,909 training samples; 24 person-free scenes, 2,481 more), mcu 13 min, paper 45 min, dgcnn 38 min and
 # point-transformer 8 min (their step budgets), quantize and eval a few minutes.
 set -euo pipefail
 repo=$(cd "$(dirname "$0")/.." && pwd)
@@ -38,9 +38,9 @@ for step in $steps; do
     "$evpose" sim --out rec-train2 --seed 2 --subjects 12 --seconds 2 --movements all --split train
     "$evpose" sim --out rec-val --seed 500 --subjects 1 --seconds 1 --movements all --split test
     "$evpose" sim --out rec-test --seed 1000 --subjects 1 --seconds 2 --movements all --split test
-    # Scenes without a person (bouncing balls, a spinning stick) for the MCU model: 40 "subjects"
+    # Scenes without a person (bouncing balls, a spinning stick) for the MCU model: 24 "subjects"
     # of seed 4000, written with --person-free (no label; train.py pulls them to uniform).
-    "$evpose" sim --out np-train --seed 4000 --subjects 40 --seconds 2 --movements no-person \
+    "$evpose" sim --out np-train --seed 4000 --subjects 24 --seconds 2 --movements no-person \
       --split train
     "$evpose" dataset --recordings rec-train --out ds-train --split train
     "$evpose" dataset --recordings rec-train2 --out ds-train2 --split train
