@@ -992,6 +992,16 @@ fn i8_packed_all_products_and_model_shapes() {
             check_packed(&w, n, k, &x, 1536, p, &b, p * n, n);
         }
     }
+    // Rows longer than the AVX2 kernel's 1,024-input chunk of widened inputs: two and three
+    // chunks, the last one short and (for K = 2_053) ending in a partial step.
+    for (k, n) in [(1_027, 70), (2_053, 9)] {
+        let w: Vec<i8> = (0..k * n).map(|_| next() as i8).collect();
+        let b: Vec<i32> = (0..n).map(|_| (next() as i32) >> 8).collect();
+        let x: Vec<i8> = (0..7 * k + 3).map(|_| next() as i8).collect();
+        for p in [1, 6, 7] {
+            check_packed(&w, n, k, &x, k, p, &b, p * n, n);
+        }
+    }
 }
 
 #[test]
@@ -1008,11 +1018,14 @@ fn i16_packed_first_layer_shape_and_extremes() {
 }
 
 #[test]
-fn vnni_tables_have_a_native_packed_kernel() {
+fn x86_tables_but_avx512bw_have_a_native_packed_kernel() {
     for kern in with_reference_table() {
         assert_eq!(
             kern.has_packed(),
-            matches!(kern.isa(), Isa::X86Avx512Vnni | Isa::X86AvxVnni),
+            matches!(
+                kern.isa(),
+                Isa::X86Avx512Vnni | Isa::X86AvxVnni | Isa::X86Avx2
+            ),
             "{}",
             kern.name()
         );

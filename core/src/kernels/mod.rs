@@ -59,8 +59,8 @@
 //! [`Kernels::matmat_packed_i8`] over it needs no
 //! horizontal sums and reads each point's inputs in place; [`Kernels::matmat_packed_i16`] does
 //! the same for the int16 first layer, whose five-input rows cost the row-major kernel more in
-//! horizontal sums than in products. The AVX-512 VNNI and AVX-VNNI tables have native packed
-//! kernels ([`Kernels::has_packed`]); every other table runs the packed references, so the
+//! horizontal sums than in products. The AVX-512 VNNI, AVX-VNNI and AVX2 tables have native
+//! packed kernels ([`Kernels::has_packed`]); every other table runs the packed references, so the
 //! packed engine ([`crate::infer::Plan::packed`]) works, and is tested, everywhere.
 //!
 //! The f32 and packed kernels are not stored in the table: [`Kernels::matvec_f32`] and the

@@ -292,6 +292,21 @@ pub const fn packed_dims<T>(
     (p, if p == 0 { 0 } else { o })
 }
 
+/// [`packed_dims`] of a kernel call's own arguments (the slices' lengths).
+#[inline]
+pub fn call_dims<T, X>(
+    w: &Packed<'_, T>,
+    x: &[X],
+    x_stride: usize,
+    points: usize,
+    bias: &[i32],
+    out: &[i32],
+    out_stride: usize,
+) -> (usize, usize) {
+    let (x_len, b_len, o_len) = (x.len(), bias.len(), out.len());
+    packed_dims(w, x_len, x_stride, points, b_len, o_len, out_stride)
+}
+
 const fn min(a: usize, b: usize) -> usize {
     if a < b {
         a
@@ -335,15 +350,7 @@ fn matmat_packed<T: Lane>(
     out: &mut [i32],
     out_stride: usize,
 ) {
-    let (points, rows) = packed_dims(
-        w,
-        x.len(),
-        x_stride,
-        points,
-        bias.len(),
-        out.len(),
-        out_stride,
-    );
+    let (points, rows) = call_dims(w, x, x_stride, points, bias, out, out_stride);
     for p in 0..points {
         let x = &x[p * x_stride..][..w.k];
         for (o, (y, &b)) in out[p * out_stride..][..rows]

@@ -32,11 +32,13 @@
 //! is computed once per point. The 4 × 4 blocks of 512-bit sums are reduced by one shuffle tree
 //! (`hsum16_512`).
 //!
-//! The packed kernels (`x86/packed.rs`: [`matmat_packed_i8_avx512vnni`] and
-//! [`matmat_packed_i8_avxvnni`], and their int16 twins for the first layer) need neither the
-//! shuffle tree nor the per-call correction of the weights: the weights are packed as `w + 128`
-//! with 16 (or 8) outputs across the lanes, the points' inputs are the signed operand,
-//! broadcast four bytes at a time, and `128·Σx` is subtracted once per point.
+//! The packed kernels (`x86/packed.rs`: [`matmat_packed_i8_avx512vnni`],
+//! [`matmat_packed_i8_avxvnni`] and [`matmat_packed_i8_avx2`], and their int16 twins for the
+//! first layer) need neither the shuffle tree nor the per-call correction of the weights: the
+//! weights are packed as `w + 128` with 16 (or 8) outputs across the lanes, the points' inputs
+//! are the signed operand, broadcast four bytes at a time (AVX2: as two i16 pairs, widened once
+//! per call), and `128·Σx` is subtracted once per point. The AVX-512BW table (Skylake-SP's AVX-512,
+//! without VNNI) has none yet and runs the row-major kernels.
 //!
 //! The `unsafe fn`s are public for callers that do their own feature checks; safe code gets them
 //! through [`super::Kernels`], which hands out only kernels the CPU supports.
@@ -53,8 +55,8 @@ mod packed;
 mod peak;
 
 pub use packed::{
-    matmat_packed_i16_avx512vnni, matmat_packed_i16_avxvnni, matmat_packed_i8_avx512vnni,
-    matmat_packed_i8_avxvnni,
+    matmat_packed_i16_avx2, matmat_packed_i16_avx512vnni, matmat_packed_i16_avxvnni,
+    matmat_packed_i8_avx2, matmat_packed_i8_avx512vnni, matmat_packed_i8_avxvnni,
 };
 pub use peak::peak_loop;
 
@@ -227,6 +229,7 @@ pub(super) fn packed_kernels(
     match k.isa() {
         Isa::X86Avx512Vnni => Some((avx512vnni_i8pk, avx512vnni_i16pk)),
         Isa::X86AvxVnni => Some((avxvnni_i8pk, avxvnni_i16pk)),
+        Isa::X86Avx2 => Some((avx2_i8pk, avx2_i16pk)),
         _ => None,
     }
 }
@@ -323,6 +326,8 @@ checked_pk! {
     avx512vnni_i16pk => matmat_packed_i16_avx512vnni(i16, super::PackedI16<'_>);
     avxvnni_i8pk => matmat_packed_i8_avxvnni(i8, super::PackedI8<'_>);
     avxvnni_i16pk => matmat_packed_i16_avxvnni(i16, super::PackedI16<'_>);
+    avx2_i8pk => matmat_packed_i8_avx2(i8, super::PackedI8<'_>);
+    avx2_i16pk => matmat_packed_i16_avx2(i16, super::PackedI16<'_>);
 }
 
 checked_mm! {

@@ -1,8 +1,10 @@
 //! The kernels over pre-packed weights ([`crate::kernels::packed`]): int8 (`vpdpbusd`, four
 //! inputs per lane) and int16 (`vpdpwssd`, two), on 512-bit registers (AVX-512 VNNI) and on
-//! 256-bit ones (AVX-VNNI, for the CPUs that have it without AVX-512). One loop for all four,
-//! written once ([`packed_loop!`]) and compiled per register width with that width's target
-//! features.
+//! 256-bit ones (AVX-VNNI, for the CPUs that have it without AVX-512), and on AVX2, which has
+//! neither instruction. One loop for the VNNI widths and AVX2's int16 kernel (`vpmaddwd` and an
+//! add in place of `vpdpwssd`), written once ([`packed_loop!`]) and compiled per register width
+//! with that width's target features; AVX2's int8 kernel ([`matmat_packed_i8_avx2`]) is its own
+//! loop, over inputs it widens first.
 //!
 //! A register tile is a slice of a row group (64 outputs) by up to [`TILE_POINTS`] points:
 //!
@@ -10,6 +12,7 @@
 //! |---|---|---|---|---|
 //! | 512-bit | 64 rows, 4 registers of 16 lanes | 24 | 4 | 4 weight loads, 6 broadcasts, 24 `vpdpbusd` (1,536 MACs) |
 //! | 256-bit | 16 rows, 2 registers of 8 lanes (16 registers in all) | 12 | 2 | 2 weight loads, 6 broadcasts, 12 `vpdpbusd` (384 MACs) |
+//! | AVX2 int8 | 16 rows, 2 registers, 5 points | 10 | 4 (even and odd bytes) | 2 weight loads, 2 ANDs, 2 shifts, 10 broadcasts, 20 `vpmaddwd`, 20 adds (320 MACs) |
 //!
 //! (The MACs are int8's; an int16 `vpdpwssd` does half as many, two inputs per lane.) No
 //! horizontal sums: lane `i` of accumulator `q` is output `LANES·q + i` of the slice, stored as
@@ -23,33 +26,34 @@
 //! GMAC/s `kernels::peak_loop` measures; the other order, each row group's 32 KiB kept in L1
 //! while every tile passes over it, measured about 340 GMAC/s with four-point tiles (a timing
 //! loop, on the same machine while it was busy).
+//!
+//! On AVX2 (measured on a Zen 4 VM with `EVPOSE_KERNELS=avx2`, criterion, blocks of 24 points):
+//! conv5 at 68 GMAC/s, 81 % of the 84 GMAC/s `vpmaddwd` peak, where the row-major
+//! [`super::matmat_i8_avx2`] gives 46.5. Six points with two registers each need 18 of the 16
+//! registers; the spills took it to 40 GMAC/s.
 
 use core::arch::x86_64::*;
 
-use super::vnni_correction;
-use crate::kernels::packed::{packed_dims, Block, Lane, Packed, PackedI16, PackedI8, GROUP_ROWS};
+use super::{ld256_i8, vnni_correction};
+use crate::kernels::packed::{call_dims, Block, Lane, Packed, PackedI16, PackedI8, GROUP_ROWS};
 
 /// Points per register tile.
 pub const TILE_POINTS: usize = 6;
 
 /// What the loop needs to know of a weight type beyond its [`Lane`] layout.
 trait Vnni: Lane {
-    /// Whether a step is a pair of i16 (`vpdpwssd`) rather than four u8 × i8 (`vpdpbusd`).
-    const WORDS: bool;
     /// What to subtract from each of a point's sums: `128·Σx` for int8 (the weights' offset),
     /// 0 for int16.
     fn correction(x: &[Self]) -> i32;
 }
 
 impl Vnni for i8 {
-    const WORDS: bool = false;
     fn correction(x: &[i8]) -> i32 {
         vnni_correction(x)
     }
 }
 
 impl Vnni for i16 {
-    const WORDS: bool = true;
     fn correction(_: &[i16]) -> i32 {
         0
     }
@@ -79,10 +83,10 @@ struct Tile<'a> {
 /// the low `min(len, $lanes)` lanes of `a + bias − c`).
 macro_rules! packed_loop {
     (
-        $m:ident, $features:literal, $i8:ident, $i16:ident;
+        $m:ident, $features:literal, $(i8: $i8:ident, dpbusd: $dpbusd:expr,)? i16: $i16:ident;
         $v:ty, $lanes:expr, $regs:expr,
         zero: $zero:expr, set1: $set1:expr, load: $load:expr,
-        dpbusd: $dpbusd:expr, dpwssd: $dpwssd:expr, store: $store:expr $(,)?
+        dpwssd: $dpwssd:expr, store: $store:expr $(,)?
     ) => {
         mod $m {
             use super::*;
@@ -94,6 +98,7 @@ macro_rules! packed_loop {
             /// Slices per row group.
             const SLICES: usize = GROUP_ROWS / (LANES * REGS);
 
+            $(
             #[doc = concat!("[`crate::kernels::packed::matmat_packed_i8`], bit-exact, with `", $features, "`.")]
             ///
             /// # Safety
@@ -110,6 +115,18 @@ macro_rules! packed_loop {
             ) {
                 tiles::<i8, 4>(w, x, x_stride, points, bias, out, out_stride)
             }
+
+            impl Mac for i8 {
+                #[inline]
+                #[target_feature(enable = $features)]
+                unsafe fn mac(acc: &mut [$v; REGS], w: &[$v; REGS], inputs: i32) {
+                    let v = $set1(inputs);
+                    for (a, &w) in acc.iter_mut().zip(w) {
+                        *a = $dpbusd(*a, w, v);
+                    }
+                }
+            }
+            )?
 
             #[doc = concat!("[`crate::kernels::packed::matmat_packed_i16`], bit-exact, with `", $features, "`.")]
             ///
@@ -133,7 +150,7 @@ macro_rules! packed_loop {
             #[allow(clippy::too_many_arguments)]
             #[inline]
             #[target_feature(enable = $features)]
-            fn tiles<T: Vnni, const S: usize>(
+            fn tiles<T: Mac, const S: usize>(
                 w: &Packed<'_, T>,
                 x: &[T],
                 x_stride: usize,
@@ -143,15 +160,7 @@ macro_rules! packed_loop {
                 out_stride: usize,
             ) {
                 const { assert!(S == T::STEP) };
-                let (points, rows) = packed_dims(
-                    w,
-                    x.len(),
-                    x_stride,
-                    points,
-                    bias.len(),
-                    out.len(),
-                    out_stride,
-                );
+                let (points, rows) = call_dims(w, x, x_stride, points, bias, out, out_stride);
                 let k = w.k();
                 let mut first = 0;
                 while first < points {
@@ -192,7 +201,7 @@ macro_rules! packed_loop {
             /// inputs per step; `corr` holds what to subtract from each point's sums.
             #[inline]
             #[target_feature(enable = $features)]
-            fn run<const NP: usize, const S: usize, T: Vnni>(
+            fn run<const NP: usize, const S: usize, T: Mac>(
                 tile: &Tile<'_>,
                 slice: usize,
                 (x, x_stride, p, corr, out, out_stride): TileIo<'_, '_, T>,
@@ -213,14 +222,16 @@ macro_rules! packed_loop {
                 for (s, block) in blocks.iter().enumerate() {
                     let wv: [$v; REGS] = core::array::from_fn(|r| $load(block, reg0 + r));
                     for (a, xs) in acc.iter_mut().zip(&steps) {
-                        mac::<T>(a, &wv, T::lane_bits(&xs[s]));
+                        // SAFETY: `run` is compiled with the features `T::mac` needs.
+                        unsafe { T::mac(a, &wv, T::lane_bits(&xs[s])) };
                     }
                 }
                 if let Some(block) = tail.first() {
                     // K is not a multiple of the step: the missing inputs count as zero.
                     let wv: [$v; REGS] = core::array::from_fn(|r| $load(block, reg0 + r));
                     for (a, row) in acc.iter_mut().zip(&rows) {
-                        mac::<T>(a, &wv, T::lane_bits(&row[full * S..]));
+                        // SAFETY: as above.
+                        unsafe { T::mac(a, &wv, T::lane_bits(&row[full * S..])) };
                     }
                 }
                 for (i, (a, &c)) in acc.iter().zip(corr).enumerate() {
@@ -237,47 +248,259 @@ macro_rules! packed_loop {
 
             /// One point's step of inputs (the lane's four bytes), broadcast, times one
             /// slice of a block: `vpdpbusd` (int8) or `vpdpwssd` (int16) into each of the
-            /// point's accumulators.
-            #[inline]
-            #[target_feature(enable = $features)]
-            fn mac<T: Vnni>(acc: &mut [$v; REGS], w: &[$v; REGS], inputs: i32) {
-                let v = $set1(inputs);
-                for (a, &w) in acc.iter_mut().zip(w) {
-                    *a = if T::WORDS {
-                        $dpwssd(*a, w, v)
-                    } else {
-                        $dpbusd(*a, w, v)
-                    };
+            /// point's accumulators. A trait, so that a width without an int8 kernel here
+            /// (AVX2's is [`matmat_packed_i8_avx2`]) stamps only the int16 one.
+            trait Mac: Vnni {
+                /// # Safety
+                #[doc = concat!("The CPU must support `", $features, "`.")]
+                unsafe fn mac(acc: &mut [$v; REGS], w: &[$v; REGS], inputs: i32);
+            }
+
+            impl Mac for i16 {
+                #[inline]
+                #[target_feature(enable = $features)]
+                unsafe fn mac(acc: &mut [$v; REGS], w: &[$v; REGS], inputs: i32) {
+                    let v = $set1(inputs);
+                    for (a, &w) in acc.iter_mut().zip(w) {
+                        *a = $dpwssd(*a, w, v);
+                    }
                 }
             }
         }
 
-        pub use $m::{$i16, $i8};
+        pub use $m::{$i16 $(, $i8)?};
     };
 }
 
 packed_loop! {
     zmm, "avx2,avx512f,avx512bw,avx512vl,avx512vnni",
-    matmat_packed_i8_avx512vnni, matmat_packed_i16_avx512vnni;
+    i8: matmat_packed_i8_avx512vnni, dpbusd: _mm512_dpbusd_epi32,
+    i16: matmat_packed_i16_avx512vnni;
     __m512i, 16, 4,
     zero: _mm512_setzero_si512,
     set1: _mm512_set1_epi32,
     load: load512,
-    dpbusd: _mm512_dpbusd_epi32,
     dpwssd: _mm512_dpwssd_epi32,
     store: store512,
 }
 
 packed_loop! {
     ymm, "avx2,avxvnni",
-    matmat_packed_i8_avxvnni, matmat_packed_i16_avxvnni;
+    i8: matmat_packed_i8_avxvnni, dpbusd: _mm256_dpbusd_avx_epi32,
+    i16: matmat_packed_i16_avxvnni;
     __m256i, 8, 2,
     zero: _mm256_setzero_si256,
     set1: _mm256_set1_epi32,
     load: load256,
-    dpbusd: _mm256_dpbusd_avx_epi32,
     dpwssd: _mm256_dpwssd_avx_epi32,
     store: store256,
+}
+
+packed_loop! {
+    avx2, "avx2",
+    i16: matmat_packed_i16_avx2;
+    __m256i, 8, 2,
+    zero: _mm256_setzero_si256,
+    set1: _mm256_set1_epi32,
+    load: load256,
+    dpwssd: dpwssd_avx2,
+    store: store256,
+}
+
+/// The int8 packed kernel on AVX2, which has no `vpdpbusd`: two `vpmaddwd` per step instead,
+/// on the packed bytes split into their even and odd bytes.
+///
+/// A lane's four weight bytes `(b0, b1, b2, b3)` (the unsigned `w + 128`) become the i16 pairs
+/// `(b0, b2)` (an AND) and `(b1, b3)` (a shift), once per step of a slice, shared by the tile's
+/// points. Each point's inputs are sign-extended once per call into the matching pairs,
+/// `(x0, x2)` and `(x1, x3)` of every step, in two small buffers (a chunk of 256 steps at a
+/// time); the loop broadcasts them from there. One step of one
+/// point is then two broadcasts, two `vpmaddwd` and two adds for 32 MACs, where widening the
+/// broadcast inputs in the loop would add three shifts, enough to make the shifts the limit.
+/// Each i16 product is at most 255 · 128 in magnitude, so every pair sum and the sum of two
+/// are exact in i32, as in `vpdpbusd`; the sums wrap modulo 2^32 like it.
+mod avx2_i8 {
+    use super::*;
+
+    /// Steps (four inputs each) of a tile's points widened at a time: 1,024 inputs, 8 KiB of
+    /// stack. A layer with more inputs is summed in chunks.
+    pub const CHUNK_STEPS: usize = 256;
+
+    /// Points per register tile.
+    pub const POINTS: usize = POINTS_;
+    const POINTS_: usize = 5;
+
+    /// i32 lanes per register.
+    const LANES: usize = 8;
+
+    /// Registers (of 8 rows) per slice of a row group.
+    const REGS: usize = 2;
+
+    /// Slices per row group.
+    const SLICES: usize = GROUP_ROWS / (LANES * REGS);
+
+    /// A tile's points' inputs, widened, step by step: `steps[s][i]` holds point `i`'s two
+    /// i16 pairs of step `s`, `(x0, x2)` then `(x1, x3)` (each as the lane value, `x0` low).
+    /// Step-major, so the loop walks the steps beside the weight blocks with no index checks.
+    type Widened = [[[i32; 2]; POINTS]; CHUNK_STEPS];
+
+    /// [`crate::kernels::packed::matmat_packed_i8`], bit-exact, with `avx2`.
+    ///
+    /// # Safety
+    /// The CPU must support `avx2`.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn matmat_packed_i8_avx2(
+        w: &PackedI8<'_>,
+        x: &[i8],
+        x_stride: usize,
+        points: usize,
+        bias: &[i32],
+        out: &mut [i32],
+        out_stride: usize,
+    ) {
+        let (points, rows) = call_dims(w, x, x_stride, points, bias, out, out_stride);
+        let (k, steps) = (w.k(), w.steps());
+        let mut buf: Widened = [[[0; 2]; POINTS]; CHUNK_STEPS];
+        let mut first = 0;
+        while first < points {
+            let m = (points - first).min(POINTS);
+            let mut corr = [0i32; POINTS];
+            for (c, p) in corr.iter_mut().zip(first..first + m) {
+                *c = vnni_correction(&x[p * x_stride..][..k]);
+            }
+            let mut s0 = 0;
+            while s0 < steps {
+                let n = (steps - s0).min(CHUNK_STEPS);
+                for i in 0..m {
+                    let row = &x[(first + i) * x_stride..][..k];
+                    let chunk = row.get(s0 * 4..).unwrap_or(&[]);
+                    widen(chunk, &mut buf[..n], i);
+                }
+                for g in 0..rows.div_ceil(GROUP_ROWS) {
+                    let row0 = g * GROUP_ROWS;
+                    let tile = Tile {
+                        blocks: w.group(g).get(s0..s0 + n).unwrap_or(&[]),
+                        k,
+                        row0,
+                        rows: (rows - row0).min(GROUP_ROWS),
+                        bias: &bias[row0..rows],
+                    };
+                    for slice in 0..SLICES {
+                        if slice * REGS * LANES >= tile.rows {
+                            break;
+                        }
+                        let io = (first, &corr[..m], &mut *out, out_stride, s0 == 0);
+                        match m {
+                            1 => run::<1>(&tile, slice, &buf[..n], io),
+                            2 => run::<2>(&tile, slice, &buf[..n], io),
+                            3 => run::<3>(&tile, slice, &buf[..n], io),
+                            4 => run::<4>(&tile, slice, &buf[..n], io),
+                            _ => run::<5>(&tile, slice, &buf[..n], io),
+                        }
+                    }
+                }
+                s0 += n;
+            }
+            first += m;
+        }
+    }
+
+    /// Sign-extends `x`'s steps into point `i`'s pairs of `steps` (as many steps as it holds;
+    /// inputs past the end of `x` count as zero): 32 bytes, eight steps, per iteration.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn widen(x: &[i8], steps: &mut [[[i32; 2]; POINTS]], i: usize) {
+        for (s8, steps) in steps.chunks_mut(8).enumerate() {
+            let mut bytes = [0i8; 32];
+            let src = x.get(s8 * 32..).unwrap_or(&[]);
+            let n = src.len().min(32);
+            bytes[..n].copy_from_slice(&src[..n]);
+            let v = ld256_i8(&bytes);
+            let (mut even, mut odd) = ([0i32; 8], [0i32; 8]);
+            // SAFETY: `even` and `odd` are 32 writable bytes each; `storeu` has no alignment
+            // requirement.
+            unsafe {
+                let ev = _mm256_srai_epi16::<8>(_mm256_slli_epi16::<8>(v));
+                _mm256_storeu_si256(even.as_mut_ptr().cast(), ev);
+                _mm256_storeu_si256(odd.as_mut_ptr().cast(), _mm256_srai_epi16::<8>(v));
+            }
+            for ((step, &e), &o) in steps.iter_mut().zip(&even).zip(&odd) {
+                if let Some(pair) = step.get_mut(i) {
+                    *pair = [e, o];
+                }
+            }
+        }
+    }
+
+    /// `(first point, corrections, out, out_stride, first chunk)` of a tile.
+    type Io<'a, 'b> = (usize, &'a [i32], &'b mut [i32], usize, bool);
+
+    /// `NP` points from `p` through slice `slice` of the group over this chunk's widened
+    /// steps; the first chunk stores `sums + bias − corr`, later ones add their sums.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn run<const NP: usize>(
+        tile: &Tile<'_>,
+        slice: usize,
+        steps: &[[[i32; 2]; POINTS]],
+        (p, corr, out, out_stride, first_chunk): Io<'_, '_>,
+    ) {
+        let mut acc = [[_mm256_setzero_si256(); REGS]; NP];
+        let low = _mm256_set1_epi16(0x00ff);
+        let reg0 = slice * REGS;
+        for (block, xs) in tile.blocks.iter().zip(steps) {
+            let w: [[__m256i; 2]; REGS] = core::array::from_fn(|r| {
+                let wv = load256(block, reg0 + r);
+                [_mm256_and_si256(wv, low), _mm256_srli_epi16::<8>(wv)]
+            });
+            for (a, &[e, o]) in acc.iter_mut().zip(xs) {
+                let (e, o) = (_mm256_set1_epi32(e), _mm256_set1_epi32(o));
+                for (a, [w_even, w_odd]) in a.iter_mut().zip(w) {
+                    let lo = _mm256_madd_epi16(w_even, e);
+                    let hi = _mm256_madd_epi16(w_odd, o);
+                    *a = _mm256_add_epi32(*a, _mm256_add_epi32(lo, hi));
+                }
+            }
+        }
+        // Over `0..NP`, a constant trip count: a loop the compiler unrolls keeps `acc` in
+        // registers (zipped with `corr`, it kept the accumulators in memory, stored every step).
+        for (i, a) in acc.iter().enumerate() {
+            let c = corr.get(i).copied().unwrap_or(0);
+            let y = &mut out[(p + i) * out_stride + tile.row0..][..tile.rows];
+            for (r, &a) in a.iter().enumerate() {
+                let lo = (reg0 + r) * LANES;
+                if lo >= tile.rows {
+                    break;
+                }
+                if first_chunk {
+                    store256(&mut y[lo..], a, &tile.bias[lo..tile.rows], c);
+                } else {
+                    add256(&mut y[lo..], a, tile.rows - lo);
+                }
+            }
+        }
+    }
+}
+
+pub use avx2_i8::matmat_packed_i8_avx2;
+
+/// `y[..n] += a`'s low `n = min(y.len(), n, 8)` lanes, wrapping; nothing else of `y` is touched.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn add256(y: &mut [i32], a: __m256i, n: usize) {
+    let mut lanes = [0i32; 8];
+    // SAFETY: `lanes` is 8 i32; `storeu` has no alignment requirement.
+    unsafe { _mm256_storeu_si256(lanes.as_mut_ptr().cast(), a) };
+    for (y, &l) in y.iter_mut().zip(&lanes).take(n) {
+        *y = y.wrapping_add(l);
+    }
+}
+
+/// `vpdpwssd` on AVX2: `acc + vpmaddwd(w, x)`, the same wrapping sums.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn dpwssd_avx2(acc: __m256i, w: __m256i, x: __m256i) -> __m256i {
+    _mm256_add_epi32(acc, _mm256_madd_epi16(w, x))
 }
 
 /// Register `reg` (bytes `64·reg..`) of a block; `reg < 4`.
