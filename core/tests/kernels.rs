@@ -1018,13 +1018,13 @@ fn i16_packed_first_layer_shape_and_extremes() {
 }
 
 #[test]
-fn x86_tables_but_avx512bw_have_a_native_packed_kernel() {
+fn every_x86_table_has_a_native_packed_kernel() {
     for kern in with_reference_table() {
         assert_eq!(
             kern.has_packed(),
             matches!(
                 kern.isa(),
-                Isa::X86Avx512Vnni | Isa::X86AvxVnni | Isa::X86Avx2
+                Isa::X86Avx512Vnni | Isa::X86AvxVnni | Isa::X86Avx2 | Isa::X86Avx512Bw
             ),
             "{}",
             kern.name()

@@ -38,7 +38,7 @@
 //! weights are packed as `w + 128` with 16 (or 8) outputs across the lanes, the points' inputs
 //! are the signed operand, broadcast four bytes at a time (AVX2: as two i16 pairs, widened once
 //! per call), and `128·Σx` is subtracted once per point. The AVX-512BW table (Skylake-SP's AVX-512,
-//! without VNNI) has none yet and runs the row-major kernels.
+//! without VNNI) runs AVX2's int8 loop on 512-bit registers.
 //!
 //! The `unsafe fn`s are public for callers that do their own feature checks; safe code gets them
 //! through [`super::Kernels`], which hands out only kernels the CPU supports.
@@ -55,8 +55,9 @@ mod packed;
 mod peak;
 
 pub use packed::{
-    matmat_packed_i16_avx2, matmat_packed_i16_avx512vnni, matmat_packed_i16_avxvnni,
-    matmat_packed_i8_avx2, matmat_packed_i8_avx512vnni, matmat_packed_i8_avxvnni,
+    matmat_packed_i16_avx2, matmat_packed_i16_avx512bw, matmat_packed_i16_avx512vnni,
+    matmat_packed_i16_avxvnni, matmat_packed_i8_avx2, matmat_packed_i8_avx512bw,
+    matmat_packed_i8_avx512vnni, matmat_packed_i8_avxvnni,
 };
 pub use peak::peak_loop;
 
@@ -230,6 +231,7 @@ pub(super) fn packed_kernels(
         Isa::X86Avx512Vnni => Some((avx512vnni_i8pk, avx512vnni_i16pk)),
         Isa::X86AvxVnni => Some((avxvnni_i8pk, avxvnni_i16pk)),
         Isa::X86Avx2 => Some((avx2_i8pk, avx2_i16pk)),
+        Isa::X86Avx512Bw => Some((avx512bw_i8pk, avx512bw_i16pk)),
         _ => None,
     }
 }
@@ -328,6 +330,8 @@ checked_pk! {
     avxvnni_i16pk => matmat_packed_i16_avxvnni(i16, super::PackedI16<'_>);
     avx2_i8pk => matmat_packed_i8_avx2(i8, super::PackedI8<'_>);
     avx2_i16pk => matmat_packed_i16_avx2(i16, super::PackedI16<'_>);
+    avx512bw_i8pk => matmat_packed_i8_avx512bw(i8, super::PackedI8<'_>);
+    avx512bw_i16pk => matmat_packed_i16_avx512bw(i16, super::PackedI16<'_>);
 }
 
 checked_mm! {

@@ -12,7 +12,8 @@
 //! |---|---|---|---|---|
 //! | 512-bit | 64 rows, 4 registers of 16 lanes | 24 | 4 | 4 weight loads, 6 broadcasts, 24 `vpdpbusd` (1,536 MACs) |
 //! | 256-bit | 16 rows, 2 registers of 8 lanes (16 registers in all) | 12 | 2 | 2 weight loads, 6 broadcasts, 12 `vpdpbusd` (384 MACs) |
-//! | AVX2 int8 | 16 rows, 2 registers, 5 points | 10 | 4 (even and odd bytes) | 2 weight loads, 2 ANDs, 2 shifts, 10 broadcasts, 20 `vpmaddwd`, 20 adds (320 MACs) |
+//! | AVX2 int8 | 16 rows, 2 registers, 4 points | 8 | 4 (even and odd bytes) | 2 weight loads, 2 ANDs, 2 shifts, 8 broadcasts, 16 `vpmaddwd`, 16 adds (256 MACs) |
+//! | AVX-512BW int8 | 64 rows, 4 registers, 5 points | 20 | 8 | 4 weight loads, 4 ANDs, 4 shifts, 10 broadcasts, 40 `vpmaddwd`, 40 adds (1,280 MACs) |
 //!
 //! (The MACs are int8's; an int16 `vpdpwssd` does half as many, two inputs per lane.) No
 //! horizontal sums: lane `i` of accumulator `q` is output `LANES·q + i` of the slice, stored as
@@ -27,10 +28,10 @@
 //! while every tile passes over it, measured about 340 GMAC/s with four-point tiles (a timing
 //! loop, on the same machine while it was busy).
 //!
-//! On AVX2 (measured on a Zen 4 VM with `EVPOSE_KERNELS=avx2`, criterion, blocks of 24 points):
-//! conv5 at 68 GMAC/s, 81 % of the 84 GMAC/s `vpmaddwd` peak, where the row-major
-//! [`super::matmat_i8_avx2`] gives 46.5. Six points with two registers each need 18 of the 16
-//! registers; the spills took it to 40 GMAC/s.
+//! On AVX2 and AVX-512BW the whole paper model runs 1.1–1.37× faster packed than row-major
+//! (README, "AVX2 and AVX-512BW packed kernels"). The AVX2 tile is four points: five, with
+//! two registers each plus the four weight registers and two broadcasts, need 17 of the 16
+//! registers, and the compiler then kept every accumulator in memory.
 
 use core::arch::x86_64::*;
 
@@ -307,183 +308,6 @@ packed_loop! {
     store: store256,
 }
 
-/// The int8 packed kernel on AVX2, which has no `vpdpbusd`: two `vpmaddwd` per step instead,
-/// on the packed bytes split into their even and odd bytes.
-///
-/// A lane's four weight bytes `(b0, b1, b2, b3)` (the unsigned `w + 128`) become the i16 pairs
-/// `(b0, b2)` (an AND) and `(b1, b3)` (a shift), once per step of a slice, shared by the tile's
-/// points. Each point's inputs are sign-extended once per call into the matching pairs,
-/// `(x0, x2)` and `(x1, x3)` of every step, in two small buffers (a chunk of 256 steps at a
-/// time); the loop broadcasts them from there. One step of one
-/// point is then two broadcasts, two `vpmaddwd` and two adds for 32 MACs, where widening the
-/// broadcast inputs in the loop would add three shifts, enough to make the shifts the limit.
-/// Each i16 product is at most 255 · 128 in magnitude, so every pair sum and the sum of two
-/// are exact in i32, as in `vpdpbusd`; the sums wrap modulo 2^32 like it.
-mod avx2_i8 {
-    use super::*;
-
-    /// Steps (four inputs each) of a tile's points widened at a time: 1,024 inputs, 8 KiB of
-    /// stack. A layer with more inputs is summed in chunks.
-    pub const CHUNK_STEPS: usize = 256;
-
-    /// Points per register tile.
-    pub const POINTS: usize = POINTS_;
-    const POINTS_: usize = 5;
-
-    /// i32 lanes per register.
-    const LANES: usize = 8;
-
-    /// Registers (of 8 rows) per slice of a row group.
-    const REGS: usize = 2;
-
-    /// Slices per row group.
-    const SLICES: usize = GROUP_ROWS / (LANES * REGS);
-
-    /// A tile's points' inputs, widened, step by step: `steps[s][i]` holds point `i`'s two
-    /// i16 pairs of step `s`, `(x0, x2)` then `(x1, x3)` (each as the lane value, `x0` low).
-    /// Step-major, so the loop walks the steps beside the weight blocks with no index checks.
-    type Widened = [[[i32; 2]; POINTS]; CHUNK_STEPS];
-
-    /// [`crate::kernels::packed::matmat_packed_i8`], bit-exact, with `avx2`.
-    ///
-    /// # Safety
-    /// The CPU must support `avx2`.
-    #[target_feature(enable = "avx2")]
-    pub unsafe fn matmat_packed_i8_avx2(
-        w: &PackedI8<'_>,
-        x: &[i8],
-        x_stride: usize,
-        points: usize,
-        bias: &[i32],
-        out: &mut [i32],
-        out_stride: usize,
-    ) {
-        let (points, rows) = call_dims(w, x, x_stride, points, bias, out, out_stride);
-        let (k, steps) = (w.k(), w.steps());
-        let mut buf: Widened = [[[0; 2]; POINTS]; CHUNK_STEPS];
-        let mut first = 0;
-        while first < points {
-            let m = (points - first).min(POINTS);
-            let mut corr = [0i32; POINTS];
-            for (c, p) in corr.iter_mut().zip(first..first + m) {
-                *c = vnni_correction(&x[p * x_stride..][..k]);
-            }
-            let mut s0 = 0;
-            while s0 < steps {
-                let n = (steps - s0).min(CHUNK_STEPS);
-                for i in 0..m {
-                    let row = &x[(first + i) * x_stride..][..k];
-                    let chunk = row.get(s0 * 4..).unwrap_or(&[]);
-                    widen(chunk, &mut buf[..n], i);
-                }
-                for g in 0..rows.div_ceil(GROUP_ROWS) {
-                    let row0 = g * GROUP_ROWS;
-                    let tile = Tile {
-                        blocks: w.group(g).get(s0..s0 + n).unwrap_or(&[]),
-                        k,
-                        row0,
-                        rows: (rows - row0).min(GROUP_ROWS),
-                        bias: &bias[row0..rows],
-                    };
-                    for slice in 0..SLICES {
-                        if slice * REGS * LANES >= tile.rows {
-                            break;
-                        }
-                        let io = (first, &corr[..m], &mut *out, out_stride, s0 == 0);
-                        match m {
-                            1 => run::<1>(&tile, slice, &buf[..n], io),
-                            2 => run::<2>(&tile, slice, &buf[..n], io),
-                            3 => run::<3>(&tile, slice, &buf[..n], io),
-                            4 => run::<4>(&tile, slice, &buf[..n], io),
-                            _ => run::<5>(&tile, slice, &buf[..n], io),
-                        }
-                    }
-                }
-                s0 += n;
-            }
-            first += m;
-        }
-    }
-
-    /// Sign-extends `x`'s steps into point `i`'s pairs of `steps` (as many steps as it holds;
-    /// inputs past the end of `x` count as zero): 32 bytes, eight steps, per iteration.
-    #[inline]
-    #[target_feature(enable = "avx2")]
-    fn widen(x: &[i8], steps: &mut [[[i32; 2]; POINTS]], i: usize) {
-        for (s8, steps) in steps.chunks_mut(8).enumerate() {
-            let mut bytes = [0i8; 32];
-            let src = x.get(s8 * 32..).unwrap_or(&[]);
-            let n = src.len().min(32);
-            bytes[..n].copy_from_slice(&src[..n]);
-            let v = ld256_i8(&bytes);
-            let (mut even, mut odd) = ([0i32; 8], [0i32; 8]);
-            // SAFETY: `even` and `odd` are 32 writable bytes each; `storeu` has no alignment
-            // requirement.
-            unsafe {
-                let ev = _mm256_srai_epi16::<8>(_mm256_slli_epi16::<8>(v));
-                _mm256_storeu_si256(even.as_mut_ptr().cast(), ev);
-                _mm256_storeu_si256(odd.as_mut_ptr().cast(), _mm256_srai_epi16::<8>(v));
-            }
-            for ((step, &e), &o) in steps.iter_mut().zip(&even).zip(&odd) {
-                if let Some(pair) = step.get_mut(i) {
-                    *pair = [e, o];
-                }
-            }
-        }
-    }
-
-    /// `(first point, corrections, out, out_stride, first chunk)` of a tile.
-    type Io<'a, 'b> = (usize, &'a [i32], &'b mut [i32], usize, bool);
-
-    /// `NP` points from `p` through slice `slice` of the group over this chunk's widened
-    /// steps; the first chunk stores `sums + bias − corr`, later ones add their sums.
-    #[inline]
-    #[target_feature(enable = "avx2")]
-    fn run<const NP: usize>(
-        tile: &Tile<'_>,
-        slice: usize,
-        steps: &[[[i32; 2]; POINTS]],
-        (p, corr, out, out_stride, first_chunk): Io<'_, '_>,
-    ) {
-        let mut acc = [[_mm256_setzero_si256(); REGS]; NP];
-        let low = _mm256_set1_epi16(0x00ff);
-        let reg0 = slice * REGS;
-        for (block, xs) in tile.blocks.iter().zip(steps) {
-            let w: [[__m256i; 2]; REGS] = core::array::from_fn(|r| {
-                let wv = load256(block, reg0 + r);
-                [_mm256_and_si256(wv, low), _mm256_srli_epi16::<8>(wv)]
-            });
-            for (a, &[e, o]) in acc.iter_mut().zip(xs) {
-                let (e, o) = (_mm256_set1_epi32(e), _mm256_set1_epi32(o));
-                for (a, [w_even, w_odd]) in a.iter_mut().zip(w) {
-                    let lo = _mm256_madd_epi16(w_even, e);
-                    let hi = _mm256_madd_epi16(w_odd, o);
-                    *a = _mm256_add_epi32(*a, _mm256_add_epi32(lo, hi));
-                }
-            }
-        }
-        // Over `0..NP`, a constant trip count: a loop the compiler unrolls keeps `acc` in
-        // registers (zipped with `corr`, it kept the accumulators in memory, stored every step).
-        for (i, a) in acc.iter().enumerate() {
-            let c = corr.get(i).copied().unwrap_or(0);
-            let y = &mut out[(p + i) * out_stride + tile.row0..][..tile.rows];
-            for (r, &a) in a.iter().enumerate() {
-                let lo = (reg0 + r) * LANES;
-                if lo >= tile.rows {
-                    break;
-                }
-                if first_chunk {
-                    store256(&mut y[lo..], a, &tile.bias[lo..tile.rows], c);
-                } else {
-                    add256(&mut y[lo..], a, tile.rows - lo);
-                }
-            }
-        }
-    }
-}
-
-pub use avx2_i8::matmat_packed_i8_avx2;
-
 /// `y[..n] += a`'s low `n = min(y.len(), n, 8)` lanes, wrapping; nothing else of `y` is touched.
 #[inline]
 #[target_feature(enable = "avx2")]
@@ -494,6 +318,248 @@ fn add256(y: &mut [i32], a: __m256i, n: usize) {
     for (y, &l) in y.iter_mut().zip(&lanes).take(n) {
         *y = y.wrapping_add(l);
     }
+}
+
+/// The int8 packed kernel on AVX2 and AVX-512BW, which have no `vpdpbusd`: two `vpmaddwd` per
+/// step instead, on the packed bytes split into their even and odd bytes.
+///
+/// A lane's four weight bytes `(b0, b1, b2, b3)` (the unsigned `w + 128`) become the i16 pairs
+/// `(b0, b2)` and `(b1, b3)` (shifts of each i16 by 8), once per step of a slice, shared by the tile's
+/// points. Each point's inputs are sign-extended once per call into the matching pairs,
+/// `(x0, x2)` and `(x1, x3)` of every step, in two small buffers (a chunk of 256 steps at a
+/// time); the loop broadcasts them from there. One step of one
+/// point is then two broadcasts, two `vpmaddwd` and two adds for 32 MACs, where widening the
+/// broadcast inputs in the loop would add three shifts, enough to make the shifts the limit.
+/// Each i16 product is at most 255 · 128 in magnitude, so every pair sum and the sum of two
+/// are exact in i32, as in `vpdpbusd`; the sums wrap modulo 2^32 like it.
+///
+/// The macro stamps this kernel for one width:
+/// module `$m` with kernel `$i8`, compiled with `$features`, on registers `$v` of `$lanes` i32
+/// lanes, `$regs` registers per slice, `$points` points per tile (at most 5), and the width's
+/// intrinsics (`$slli8`/`$srli8`, shifts of each i16 by 8, `$madd` for `vpmaddwd`, `$add`;
+/// `$store` as in [`packed_loop!`], `$accumulate` adding the low lanes to `y`).
+macro_rules! widened_i8 {
+    (
+        $m:ident, $features:literal, $i8:ident;
+        $v:ty, $lanes:expr, $regs:expr, $points:expr,
+        zero: $zero:expr, set1: $set1:expr, load: $load:expr,
+        slli8: $slli8:expr, srli8: $srli8:expr, madd: $madd:expr, add: $add:expr,
+        store: $store:expr, accumulate: $accumulate:expr $(,)?
+    ) => {
+        mod $m {
+            use super::*;
+
+            /// Steps (four inputs each) of a tile's points widened at a time: 1,024 inputs, 8 KiB of
+            /// stack. A layer with more inputs is summed in chunks.
+            pub const CHUNK_STEPS: usize = 256;
+
+            /// Points per register tile.
+            const POINTS: usize = $points;
+
+            /// i32 lanes per register.
+            const LANES: usize = $lanes;
+
+            /// Registers per slice of a row group.
+            const REGS: usize = $regs;
+
+            /// Slices per row group.
+            const SLICES: usize = GROUP_ROWS / (LANES * REGS);
+
+            /// A tile's points' inputs, widened, step by step: `steps[s][i]` holds point `i`'s two
+            /// i16 pairs of step `s`, `(x0, x2)` then `(x1, x3)` (each as the lane value, `x0` low).
+            /// Step-major, so the loop walks the steps beside the weight blocks with no index checks.
+            type Widened = [[[i32; 2]; POINTS]; CHUNK_STEPS];
+
+            #[doc = concat!("[`crate::kernels::packed::matmat_packed_i8`], bit-exact, with `", $features, "`.")]
+            ///
+            /// # Safety
+            #[doc = concat!("The CPU must support `", $features, "`.")]
+            #[target_feature(enable = $features)]
+            pub unsafe fn $i8(
+                w: &PackedI8<'_>,
+                x: &[i8],
+                x_stride: usize,
+                points: usize,
+                bias: &[i32],
+                out: &mut [i32],
+                out_stride: usize,
+            ) {
+                let (points, rows) = call_dims(w, x, x_stride, points, bias, out, out_stride);
+                let (k, steps) = (w.k(), w.steps());
+                let mut buf: Widened = [[[0; 2]; POINTS]; CHUNK_STEPS];
+                let mut first = 0;
+                while first < points {
+                    let m = (points - first).min(POINTS);
+                    let mut corr = [0i32; POINTS];
+                    for (c, p) in corr.iter_mut().zip(first..first + m) {
+                        *c = vnni_correction(&x[p * x_stride..][..k]);
+                    }
+                    let mut s0 = 0;
+                    while s0 < steps {
+                        let n = (steps - s0).min(CHUNK_STEPS);
+                        for i in 0..m {
+                            let row = &x[(first + i) * x_stride..][..k];
+                            let chunk = row.get(s0 * 4..).unwrap_or(&[]);
+                            widen(chunk, &mut buf[..n], i);
+                        }
+                        for g in 0..rows.div_ceil(GROUP_ROWS) {
+                            let row0 = g * GROUP_ROWS;
+                            let tile = Tile {
+                                blocks: w.group(g).get(s0..s0 + n).unwrap_or(&[]),
+                                k,
+                                row0,
+                                rows: (rows - row0).min(GROUP_ROWS),
+                                bias: &bias[row0..rows],
+                            };
+                            for slice in 0..SLICES {
+                                if slice * REGS * LANES >= tile.rows {
+                                    break;
+                                }
+                                let io = (first, &corr[..m], &mut *out, out_stride, s0 == 0);
+                                match m {
+                                    1 => run::<1>(&tile, slice, &buf[..n], io),
+                                    2 => run::<2>(&tile, slice, &buf[..n], io),
+                                    3 => run::<3>(&tile, slice, &buf[..n], io),
+                                    4 => run::<4>(&tile, slice, &buf[..n], io),
+                                    // `m ≤ POINTS ≤ 5`.
+                                    _ => run::<5>(&tile, slice, &buf[..n], io),
+                                }
+                            }
+                        }
+                        s0 += n;
+                    }
+                    first += m;
+                }
+            }
+
+            /// Sign-extends `x`'s steps into point `i`'s pairs of `steps` (as many steps as it holds;
+            /// inputs past the end of `x` count as zero): 32 bytes, eight steps, per iteration.
+            #[inline]
+            #[target_feature(enable = $features)]
+            fn widen(x: &[i8], steps: &mut [[[i32; 2]; POINTS]], i: usize) {
+                for (s8, steps) in steps.chunks_mut(8).enumerate() {
+                    let mut bytes = [0i8; 32];
+                    let src = x.get(s8 * 32..).unwrap_or(&[]);
+                    let n = src.len().min(32);
+                    bytes[..n].copy_from_slice(&src[..n]);
+                    let v = ld256_i8(&bytes);
+                    let (mut even, mut odd) = ([0i32; 8], [0i32; 8]);
+                    // SAFETY: `even` and `odd` are 32 writable bytes each; `storeu` has no alignment
+                    // requirement.
+                    unsafe {
+                        let ev = _mm256_srai_epi16::<8>(_mm256_slli_epi16::<8>(v));
+                        _mm256_storeu_si256(even.as_mut_ptr().cast(), ev);
+                        _mm256_storeu_si256(odd.as_mut_ptr().cast(), _mm256_srai_epi16::<8>(v));
+                    }
+                    for ((step, &e), &o) in steps.iter_mut().zip(&even).zip(&odd) {
+                        if let Some(pair) = step.get_mut(i) {
+                            *pair = [e, o];
+                        }
+                    }
+                }
+            }
+
+            /// `(first point, corrections, out, out_stride, first chunk)` of a tile.
+            type Io<'a, 'b> = (usize, &'a [i32], &'b mut [i32], usize, bool);
+
+            /// `NP` points from `p` through slice `slice` of the group over this chunk's widened
+            /// steps; the first chunk stores `sums + bias − corr`, later ones add their sums.
+            #[inline]
+            #[target_feature(enable = $features)]
+            fn run<const NP: usize>(
+                tile: &Tile<'_>,
+                slice: usize,
+                steps: &[[[i32; 2]; POINTS]],
+                (p, corr, out, out_stride, first_chunk): Io<'_, '_>,
+            ) {
+                let mut acc = [[$zero(); REGS]; NP];
+                let reg0 = slice * REGS;
+                for (block, xs) in tile.blocks.iter().zip(steps) {
+                    let w: [[$v; 2]; REGS] = core::array::from_fn(|r| {
+                        let wv = $load(block, reg0 + r);
+                        [$srli8($slli8(wv)), $srli8(wv)]
+                    });
+                    for (a, &[e, o]) in acc.iter_mut().zip(xs) {
+                        let (e, o) = ($set1(e), $set1(o));
+                        for (a, [w_even, w_odd]) in a.iter_mut().zip(w) {
+                            let lo = $madd(w_even, e);
+                            let hi = $madd(w_odd, o);
+                            *a = $add(*a, $add(lo, hi));
+                        }
+                    }
+                }
+                // Over `0..NP`, a constant trip count: a loop the compiler unrolls keeps `acc` in
+                // registers (zipped with `corr`, it kept the accumulators in memory, stored every step).
+                for (i, a) in acc.into_iter().enumerate() {
+                    let c = corr.get(i).copied().unwrap_or(0);
+                    let y = &mut out[(p + i) * out_stride + tile.row0..][..tile.rows];
+                    for (r, a) in a.into_iter().enumerate() {
+                        let lo = (reg0 + r) * LANES;
+                        if lo >= tile.rows {
+                            break;
+                        }
+                        if first_chunk {
+                            $store(&mut y[lo..], a, &tile.bias[lo..tile.rows], c);
+                        } else {
+                            $accumulate(&mut y[lo..], a, tile.rows - lo);
+                        }
+                    }
+                }
+            }
+        }
+
+
+        pub use $m::$i8;
+    };
+}
+
+widened_i8! {
+    avx2_i8, "avx2", matmat_packed_i8_avx2;
+    __m256i, 8, 2, 4,
+    zero: _mm256_setzero_si256, set1: _mm256_set1_epi32,
+    load: load256, slli8: _mm256_slli_epi16::<8>, srli8: _mm256_srli_epi16::<8>,
+    madd: _mm256_madd_epi16, add: _mm256_add_epi32,
+    store: store256, accumulate: add256,
+}
+
+widened_i8! {
+    avx512bw_i8, "avx2,avx512f,avx512bw,avx512vl", matmat_packed_i8_avx512bw;
+    __m512i, 16, 4, 5,
+    zero: _mm512_setzero_si512, set1: _mm512_set1_epi32,
+    load: load512, slli8: _mm512_slli_epi16::<8>, srli8: _mm512_srli_epi16::<8>,
+    madd: _mm512_madd_epi16, add: _mm512_add_epi32,
+    store: store512, accumulate: add512,
+}
+
+/// [`add256`] for 16 lanes, masked: only the low `min(y.len(), n, 16)` lanes are touched.
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn add512(y: &mut [i32], a: __m512i, n: usize) {
+    let mask = super::low_mask(y.len().min(n)) as u16;
+    // SAFETY: the mask selects lanes `0..min(y.len(), n, 16)`, inside `y`; the others are
+    // neither read nor written.
+    unsafe {
+        let v = _mm512_add_epi32(a, _mm512_maskz_loadu_epi32(mask, y.as_ptr()));
+        _mm512_mask_storeu_epi32(y.as_mut_ptr(), mask, v)
+    }
+}
+
+packed_loop! {
+    zmm_bw, "avx2,avx512f,avx512bw,avx512vl",
+    i16: matmat_packed_i16_avx512bw;
+    __m512i, 16, 4,
+    zero: _mm512_setzero_si512,
+    set1: _mm512_set1_epi32,
+    load: load512,
+    dpwssd: dpwssd_avx512bw,
+    store: store512,
+}
+
+/// `vpdpwssd` on AVX-512BW: `acc + vpmaddwd(w, x)`, the same wrapping sums.
+#[inline]
+#[target_feature(enable = "avx512bw")]
+fn dpwssd_avx512bw(acc: __m512i, w: __m512i, x: __m512i) -> __m512i {
+    _mm512_add_epi32(acc, _mm512_madd_epi16(w, x))
 }
 
 /// `vpdpwssd` on AVX2: `acc + vpmaddwd(w, x)`, the same wrapping sums.
