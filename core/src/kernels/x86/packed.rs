@@ -324,11 +324,10 @@ fn add256(y: &mut [i32], a: __m256i, n: usize) {
 /// step instead, on the packed bytes split into their even and odd bytes.
 ///
 /// A lane's four weight bytes `(b0, b1, b2, b3)` (the unsigned `w + 128`) become the i16 pairs
-/// `(b0, b2)` and `(b1, b3)` (shifts of each i16 by 8), once per step of a slice, shared by the tile's
-/// points. Each point's inputs are sign-extended once per call into the matching pairs,
-/// `(x0, x2)` and `(x1, x3)` of every step, in two small buffers (a chunk of 256 steps at a
-/// time); the loop broadcasts them from there. One step of one
-/// point is then two broadcasts, two `vpmaddwd` and two adds for 32 MACs, where widening the
+/// `(b0, b2)` and `(b1, b3)` (shifts of each i16 by 8), once per step of a slice, shared by the
+/// tile's points. Each point's inputs are sign-extended once per call into the matching pairs,
+/// `(x0, x2)` and `(x1, x3)` of every step, in a small step-major buffer (a chunk of 256 steps
+/// at a time); the loop broadcasts them from there. One step of one point is then two broadcasts, two `vpmaddwd` and two adds for 32 MACs, where widening the
 /// broadcast inputs in the loop would add three shifts, enough to make the shifts the limit.
 /// Each i16 product is at most 255 · 128 in magnitude, so every pair sum and the sum of two
 /// are exact in i32, as in `vpdpbusd`; the sums wrap modulo 2^32 like it.
@@ -349,8 +348,8 @@ macro_rules! widened_i8 {
         mod $m {
             use super::*;
 
-            /// Steps (four inputs each) of a tile's points widened at a time: 1,024 inputs, 8 KiB of
-            /// stack. A layer with more inputs is summed in chunks.
+            /// Steps (four inputs each) of a tile's points widened at a time: 1,024 inputs, 2 KiB
+            /// of stack per point. A layer with more inputs is summed in chunks.
             pub const CHUNK_STEPS: usize = 256;
 
             /// Points per register tile.
