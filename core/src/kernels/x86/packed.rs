@@ -327,8 +327,9 @@ fn add256(y: &mut [i32], a: __m256i, n: usize) {
 /// `(b0, b2)` and `(b1, b3)` (shifts of each i16 by 8), once per step of a slice, shared by the
 /// tile's points. Each point's inputs are sign-extended once per call into the matching pairs,
 /// `(x0, x2)` and `(x1, x3)` of every step, in a small step-major buffer (a chunk of 256 steps
-/// at a time); the loop broadcasts them from there. One step of one point is then two broadcasts, two `vpmaddwd` and two adds for 32 MACs, where widening the
-/// broadcast inputs in the loop would add three shifts, enough to make the shifts the limit.
+/// at a time); the loop broadcasts them from there. One step of one point is then two
+/// broadcasts, two `vpmaddwd` and two adds for 32 MACs, where widening the broadcast inputs in
+/// the loop would add three shifts, enough to make the shifts the limit.
 /// Each i16 product is at most 255 · 128 in magnitude, so every pair sum and the sum of two
 /// are exact in i32, as in `vpdpbusd`; the sums wrap modulo 2^32 like it.
 ///
@@ -365,8 +366,9 @@ macro_rules! widened_i8 {
             const SLICES: usize = GROUP_ROWS / (LANES * REGS);
 
             /// A tile's points' inputs, widened, step by step: `steps[s][i]` holds point `i`'s two
-            /// i16 pairs of step `s`, `(x0, x2)` then `(x1, x3)` (each as the lane value, `x0` low).
-            /// Step-major, so the loop walks the steps beside the weight blocks with no index checks.
+            /// i16 pairs of step `s`, `(x0, x2)` then `(x1, x3)` (each as the lane value, `x0`
+            /// low). Step-major, so the loop walks the steps beside the weight blocks with no
+            /// index checks.
             type Widened = [[[i32; 2]; POINTS]; CHUNK_STEPS];
 
             #[doc = concat!("[`crate::kernels::packed::matmat_packed_i8`], bit-exact, with `", $features, "`.")]
@@ -487,8 +489,9 @@ macro_rules! widened_i8 {
                         }
                     }
                 }
-                // Over `0..NP`, a constant trip count: a loop the compiler unrolls keeps `acc` in
-                // registers (zipped with `corr`, it kept the accumulators in memory, stored every step).
+                // Over `0..NP`, a constant trip count: a loop the compiler unrolls keeps `acc`
+                // in registers (zipped with `corr`, it kept the accumulators in memory, stored
+                // every step).
                 for (i, a) in acc.into_iter().enumerate() {
                     let c = corr.get(i).copied().unwrap_or(0);
                     let y = &mut out[(p + i) * out_stride + tile.row0..][..tile.rows];
