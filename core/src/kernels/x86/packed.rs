@@ -28,7 +28,7 @@
 //! while every tile passes over it, measured about 340 GMAC/s with four-point tiles (a timing
 //! loop, on the same machine while it was busy).
 //!
-//! On AVX2 and AVX-512BW the whole paper model runs 1.1–1.37× faster packed than row-major
+//! On AVX2 and AVX-512BW the whole paper model runs 1.10–1.25× faster packed than row-major
 //! (README, "AVX2 and AVX-512BW packed kernels"). The AVX2 tile is four points: five, with
 //! two registers each plus the four weight registers and two broadcasts, need 17 of the 16
 //! registers, and the compiler then kept every accumulator in memory.
