@@ -29,6 +29,7 @@ e, o = json.load(open(sys.argv[1])), json.load(open(sys.argv[2]))
 t, f, i = e["fastest_ms"]
 rows = [("tract f32", e["tract_f32_ms"], t), ("core f32", e["core_f32_ms"], f),
         (f"core int8 ({e['kernels']})", e["core_i8_ms"], i),
+        *([("core int8, row-major weights", *e["core_i8_row_major_ms"])] if e.get("core_i8_row_major_ms") else []),
         ("onnxruntime f32", o["ort_f32_ms"], o["ort_f32_fastest_ms"]),
         ("onnxruntime int8 QDQ", o["ort_int8_qdq_ms"], o["ort_int8_qdq_fastest_ms"]),
         ("onnxruntime int8 QOperator", o["ort_int8_qoperator_ms"], o["ort_int8_qoperator_fastest_ms"])]

@@ -264,6 +264,30 @@ fn packed_int8_engine_gives_identical_integers_with_every_kernel_set_and_block()
 }
 
 #[test]
+fn host_runner_over_row_major_weights_gives_the_packed_runners_integers() {
+    // `CoreRunner::row_major`, what `evpose bench infer` times beside the packed engine, runs
+    // the same kernel family unpacked and must give the same logits.
+    use evpose_host::model::CoreRunner;
+    let case = small();
+    let net = model::import_onnx(&case.model).unwrap();
+    let q =
+        quantize::quantize(&net, &quantize::calibrate(&net, &case.inputs[..1]).unwrap()).unwrap();
+    let blob = AlignedBlob::new(&q.blob().unwrap());
+    let input = &case.inputs[3];
+    for (_, k) in supported_kernel_sets() {
+        let mut packed = CoreRunner::with_kernels(&blob, &k).unwrap();
+        let mut row_major = CoreRunner::row_major(&blob, &k).unwrap();
+        assert_eq!(packed.is_packed(), k.has_packed(), "{}", k.name());
+        assert!(!row_major.is_packed(), "{}", k.name());
+        let (a, b) = (
+            packed.run_i8(input).unwrap(),
+            row_major.run_i8(input).unwrap(),
+        );
+        assert_eq!((a.x, a.y), (b.x, b.y), "{}", k.name());
+    }
+}
+
+#[test]
 fn packed_weights_of_another_model_or_in_another_buffer_are_errors() {
     use evpose_core::kernels::Kernels;
     use evpose_core::{pack_point_layers, packed_bytes, scratch_words, InferError, Model, Plan};

@@ -111,6 +111,9 @@ pub struct InferBench {
     pub fraction_of_peak: Option<f64>,
     /// Kernel family the int8 engine used, and whether over packed weights.
     pub kernels: String,
+    /// Where the int8 engine ran over packed weights: the same engine and kernel family over
+    /// the blob's row-major weights, `[median, fastest]` ms, timed right after it.
+    pub core_i8_row_major_ms: Option<[f64; 2]>,
 }
 
 /// `(median, fastest)` ms of `iters` runs of `f`, after one warm-up run.
@@ -183,6 +186,13 @@ pub fn infer(onnx: &Path, points: Option<&Path>, iterations: u32) -> Result<Infe
     let (f32_ms, f32_min) = time_ms(iterations, || core_f32.run_f32(&input).map(|_| ()))?;
     let (i8_ms, i8_min) = time_ms(iterations, || core_i8.run_i8(&input).map(|_| ()))?;
     let k = model::kernels();
+    let row_major = if core_i8.is_packed() {
+        let mut runner = CoreRunner::row_major(&qblob, k)?;
+        let (ms, min) = time_ms(iterations, || runner.run_i8(&input).map(|_| ()))?;
+        Some([ms, min])
+    } else {
+        None
+    };
     let peak = peak_gmacs(k.isa());
     let i8_gmacs = macs as f64 / (i8_ms * 1e-3) / 1e9;
     Ok(InferBench {
@@ -203,6 +213,7 @@ pub fn infer(onnx: &Path, points: Option<&Path>, iterations: u32) -> Result<Infe
         } else {
             k.name().into()
         },
+        core_i8_row_major_ms: row_major,
     })
 }
 

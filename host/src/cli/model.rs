@@ -293,6 +293,14 @@ pub fn bench_infer(a: &BenchInferArgs) -> Result<()> {
             "  core  i8  {:>9.2} ms ({i8:.2})  ({:.2} GMAC/s, kernels: {})",
             b.core_i8_ms, b.i8_gmacs, b.kernels
         );
+        if let Some([ms, min]) = b.core_i8_row_major_ms {
+            println!(
+                "  core  i8  {ms:>9.2} ms ({min:.2})  over row-major weights: packed is {:.2}x \
+                 ({:.2}x fastest)",
+                ms / b.core_i8_ms,
+                min / i8
+            );
+        }
         if let (Some(p), Some(f)) = (b.peak_gmacs, b.fraction_of_peak) {
             println!(
                 "  int8 peak of this CPU, one thread: {p:.1} GMAC/s; core i8 runs at {:.1} %",

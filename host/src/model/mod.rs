@@ -77,11 +77,21 @@ impl<'b> CoreRunner<'b> {
     /// [`CoreRunner::new`] with a given kernel table (packed weights only where it has a
     /// packed kernel).
     pub fn with_kernels(blob: &'b AlignedBlob, k: &Kernels) -> Result<Self> {
+        Self::build(blob, k, true)
+    }
+
+    /// [`CoreRunner::with_kernels`] over the blob's row-major weights even where `k` has a
+    /// packed kernel: the same integers, to measure what packing gains (`evpose bench infer`).
+    pub fn row_major(blob: &'b AlignedBlob, k: &Kernels) -> Result<Self> {
+        Self::build(blob, k, false)
+    }
+
+    fn build(blob: &'b AlignedBlob, k: &Kernels, pack: bool) -> Result<Self> {
         let model = Model::parse(blob.bytes()).map_err(|e| anyhow!("{e}"))?;
         // Scratch for the model's engine only, for its largest block of points.
         let words = scratch_words_for_block(&model, evpose_core::infer::MAX_BLOCK);
         let packed = match model.dtype() {
-            DType::I8 if k.has_packed() => blob.packed(&model)?,
+            DType::I8 if pack && k.has_packed() => blob.packed(&model)?,
             _ => None,
         };
         let (f32_words, i32_words) = match model.dtype() {
