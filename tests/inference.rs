@@ -47,6 +47,12 @@ fn load_case(dir: &Path, model: &str, input: &str, key: &str) -> Case {
     }
 }
 
+/// `net` quantized with the ranges of `calibration`, as an int8 blob.
+fn int8_blob(net: &model::FloatNet, calibration: &[Vec<[f32; 5]>]) -> AlignedBlob {
+    let ranges = quantize::calibrate(net, calibration).unwrap();
+    AlignedBlob::new(&quantize::quantize(net, &ranges).unwrap().blob().unwrap())
+}
+
 fn small() -> Case {
     load_case(&fixtures(), "pointnet-small.onnx", "points", "small")
 }
@@ -160,9 +166,7 @@ fn quantized_argmax_tracks_float_reasonably() {
     // Not a quality gate (the weights are random): a sanity floor that catches broken scales.
     let case = small();
     let net = model::import_onnx(&case.model).unwrap();
-    let q =
-        quantize::quantize(&net, &quantize::calibrate(&net, &case.inputs[..3]).unwrap()).unwrap();
-    let blob = AlignedBlob::new(&q.blob().unwrap());
+    let blob = int8_blob(&net, &case.inputs[..3]);
     let float = AlignedBlob::new(&model::f32_blob(&net).unwrap());
     let (mut close, mut total) = (0, 0);
     for input in &case.inputs {
@@ -201,9 +205,7 @@ fn int8_engine_gives_identical_integers_with_every_kernel_set() {
     use evpose_core::kernels::Kernels;
     let case = small();
     let net = model::import_onnx(&case.model).unwrap();
-    let q =
-        quantize::quantize(&net, &quantize::calibrate(&net, &case.inputs[..1]).unwrap()).unwrap();
-    let blob = AlignedBlob::new(&q.blob().unwrap());
+    let blob = int8_blob(&net, &case.inputs[..1]);
     let reference: Vec<_> = case.inputs[..3]
         .iter()
         .map(|i| model::run_core_i8_with(&Kernels::reference(), &blob, i).unwrap())
@@ -229,9 +231,7 @@ fn packed_int8_engine_gives_identical_integers_with_every_kernel_set_and_block()
     use evpose_core::{pack_point_layers, packed_bytes, scratch_words_for_block, Model, Plan};
     let case = small();
     let net = model::import_onnx(&case.model).unwrap();
-    let q =
-        quantize::quantize(&net, &quantize::calibrate(&net, &case.inputs[..1]).unwrap()).unwrap();
-    let blob = AlignedBlob::new(&q.blob().unwrap());
+    let blob = int8_blob(&net, &case.inputs[..1]);
     let m = Model::parse(blob.bytes()).unwrap();
     let mut buf = vec![0u8; packed_bytes(&m)];
     let layout = pack_point_layers(&m, &mut buf).unwrap();
@@ -270,9 +270,7 @@ fn host_runner_over_row_major_weights_gives_the_packed_runners_integers() {
     use evpose_host::model::CoreRunner;
     let case = small();
     let net = model::import_onnx(&case.model).unwrap();
-    let q =
-        quantize::quantize(&net, &quantize::calibrate(&net, &case.inputs[..1]).unwrap()).unwrap();
-    let blob = AlignedBlob::new(&q.blob().unwrap());
+    let blob = int8_blob(&net, &case.inputs[..1]);
     let input = &case.inputs[3];
     for (_, k) in supported_kernel_sets() {
         let mut packed = CoreRunner::with_kernels(&blob, &k).unwrap();
@@ -293,10 +291,7 @@ fn packed_weights_of_another_model_or_in_another_buffer_are_errors() {
     use evpose_core::{pack_point_layers, packed_bytes, scratch_words, InferError, Model, Plan};
     let case = small();
     let net = model::import_onnx(&case.model).unwrap();
-    let blob_of = |i: usize| {
-        let ranges = quantize::calibrate(&net, &case.inputs[i..i + 1]).unwrap();
-        AlignedBlob::new(&quantize::quantize(&net, &ranges).unwrap().blob().unwrap())
-    };
+    let blob_of = |i: usize| int8_blob(&net, &case.inputs[i..i + 1]);
     let (a, b) = (blob_of(0), blob_of(1));
     let (ma, mb) = (
         Model::parse(a.bytes()).unwrap(),
@@ -350,9 +345,7 @@ fn int8_engine_gives_identical_integers_for_every_block_size() {
     use evpose_core::{scratch_words_for_block, Model, Plan};
     let case = small();
     let net = model::import_onnx(&case.model).unwrap();
-    let q =
-        quantize::quantize(&net, &quantize::calibrate(&net, &case.inputs[..1]).unwrap()).unwrap();
-    let blob = AlignedBlob::new(&q.blob().unwrap());
+    let blob = int8_blob(&net, &case.inputs[..1]);
     let m = Model::parse(blob.bytes()).unwrap();
     let input = &case.inputs[4][..1000]; // 1000 points: not a multiple of most block sizes
     let run = |words: usize| {

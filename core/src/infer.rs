@@ -743,7 +743,7 @@ pub fn packed_bytes(model: &Model<'_>) -> usize {
 /// and get the weights back for [`Plan::packed`] with [`PackedLayout::weights`].
 ///
 /// Packing is for CPUs with native packed kernels ([`Kernels::has_packed`]: x86 AVX-512
-/// VNNI, AVX-VNNI and AVX2). It doubles the point layers' weight memory, so an MCU runs the blob's row-major
+/// VNNI, AVX-VNNI, AVX-512BW and AVX2). It doubles the point layers' weight memory, so an MCU runs the blob's row-major
 /// weights in place with [`Plan::run_i8`] instead.
 #[derive(Clone, Copy, Debug)]
 pub struct PackedLayout {

@@ -59,9 +59,10 @@
 //! [`Kernels::matmat_packed_i8`] over it needs no
 //! horizontal sums and reads each point's inputs in place; [`Kernels::matmat_packed_i16`] does
 //! the same for the int16 first layer, whose five-input rows cost the row-major kernel more in
-//! horizontal sums than in products. The AVX-512 VNNI, AVX-VNNI and AVX2 tables have native
-//! packed kernels ([`Kernels::has_packed`]); every other table runs the packed references, so the
-//! packed engine ([`crate::infer::Plan::packed`]) works, and is tested, everywhere.
+//! horizontal sums than in products. Every x86 table (AVX-512 VNNI, AVX-VNNI, AVX-512BW, AVX2)
+//! has native packed kernels ([`Kernels::has_packed`]); every other table runs the packed
+//! references, so the packed engine ([`crate::infer::Plan::packed`]) works, and is tested,
+//! everywhere.
 //!
 //! The f32 and packed kernels are not stored in the table: [`Kernels::matvec_f32`] and the
 //! packed calls pick them from the table's [`Isa`] where they are called. An image that never

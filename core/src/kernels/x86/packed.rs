@@ -1,10 +1,11 @@
 //! The kernels over pre-packed weights ([`crate::kernels::packed`]): int8 (`vpdpbusd`, four
 //! inputs per lane) and int16 (`vpdpwssd`, two), on 512-bit registers (AVX-512 VNNI) and on
-//! 256-bit ones (AVX-VNNI, for the CPUs that have it without AVX-512), and on AVX2, which has
-//! neither instruction. One loop for the VNNI widths and AVX2's int16 kernel (`vpmaddwd` and an
-//! add in place of `vpdpwssd`), written once ([`packed_loop!`]) and compiled per register width
-//! with that width's target features; AVX2's int8 kernel ([`matmat_packed_i8_avx2`]) is its own
-//! loop, over inputs it widens first.
+//! 256-bit ones (AVX-VNNI, for the CPUs that have it without AVX-512), and on AVX2 and
+//! AVX-512BW, which have neither instruction. One loop for the VNNI widths and the int16 kernels
+//! of AVX2 and AVX-512BW (`vpmaddwd` and an add in place of `vpdpwssd`), written once
+//! ([`packed_loop!`]) and compiled per register width with that width's target features; the
+//! int8 kernels of AVX2 and AVX-512BW ([`matmat_packed_i8_avx2`], [`matmat_packed_i8_avx512bw`])
+//! are a second loop ([`widened_i8!`]), over inputs it widens first.
 //!
 //! A register tile is a slice of a row group (64 outputs) by up to [`TILE_POINTS`] points:
 //!
@@ -12,8 +13,8 @@
 //! |---|---|---|---|---|
 //! | 512-bit | 64 rows, 4 registers of 16 lanes | 24 | 4 | 4 weight loads, 6 broadcasts, 24 `vpdpbusd` (1,536 MACs) |
 //! | 256-bit | 16 rows, 2 registers of 8 lanes (16 registers in all) | 12 | 2 | 2 weight loads, 6 broadcasts, 12 `vpdpbusd` (384 MACs) |
-//! | AVX2 int8 | 16 rows, 2 registers, 4 points | 8 | 4 (even and odd bytes) | 2 weight loads, 2 ANDs, 2 shifts, 8 broadcasts, 16 `vpmaddwd`, 16 adds (256 MACs) |
-//! | AVX-512BW int8 | 64 rows, 4 registers, 5 points | 20 | 8 | 4 weight loads, 4 ANDs, 4 shifts, 10 broadcasts, 40 `vpmaddwd`, 40 adds (1,280 MACs) |
+//! | AVX2 int8 | 16 rows, 2 registers, 4 points | 8 | 4 (even and odd bytes) | 2 weight loads, 2 masks, 2 shifts, 8 broadcasts, 16 `vpmaddwd`, 16 adds (256 MACs) |
+//! | AVX-512BW int8 | 64 rows, 4 registers, 5 points | 20 | 8 | 4 weight loads, 4 masks, 4 shifts, 10 broadcasts, 40 `vpmaddwd`, 40 adds (1,280 MACs) |
 //!
 //! (The MACs are int8's; an int16 `vpdpwssd` does half as many, two inputs per lane.) No
 //! horizontal sums: lane `i` of accumulator `q` is output `LANES·q + i` of the slice, stored as
@@ -249,8 +250,9 @@ macro_rules! packed_loop {
 
             /// One point's step of inputs (the lane's four bytes), broadcast, times one
             /// slice of a block: `vpdpbusd` (int8) or `vpdpwssd` (int16) into each of the
-            /// point's accumulators. A trait, so that a width without an int8 kernel here
-            /// (AVX2's is [`matmat_packed_i8_avx2`]) stamps only the int16 one.
+            /// point's accumulators. A trait, so that a width without `vpdpbusd` (AVX2,
+            /// AVX-512BW: their int8 kernels come from [`widened_i8!`]) stamps only the int16
+            /// one.
             trait Mac: Vnni {
                 /// # Safety
                 #[doc = concat!("The CPU must support `", $features, "`.")]
@@ -324,12 +326,12 @@ fn add256(y: &mut [i32], a: __m256i, n: usize) {
 /// step instead, on the packed bytes split into their even and odd bytes.
 ///
 /// A lane's four weight bytes `(b0, b1, b2, b3)` (the unsigned `w + 128`) become the i16 pairs
-/// `(b0, b2)` and `(b1, b3)` (shifts of each i16 by 8), once per step of a slice, shared by the
-/// tile's points. Each point's inputs are sign-extended once per call into the matching pairs,
-/// `(x0, x2)` and `(x1, x3)` of every step, in a small step-major buffer (a chunk of 256 steps
-/// at a time); the loop broadcasts them from there. One step of one point is then two
-/// broadcasts, two `vpmaddwd` and two adds for 32 MACs, where widening the broadcast inputs in
-/// the loop would add three shifts, enough to make the shifts the limit.
+/// `(b0, b2)` (a shift pair, which compiles to a mask) and `(b1, b3)` (a shift), once per step
+/// of a slice, shared by the tile's points. Each point's inputs are sign-extended once per call
+/// into the matching pairs, `(x0, x2)` and `(x1, x3)` of every step, in a small step-major
+/// buffer (a chunk of 256 steps at a time); the loop broadcasts them from there. One step of
+/// one point is then two broadcasts, two `vpmaddwd` and two adds for 32 MACs, where widening
+/// the broadcast inputs in the loop would add three shifts, enough to make the shifts the limit.
 /// Each i16 product is at most 255 · 128 in magnitude, so every pair sum and the sum of two
 /// are exact in i32, as in `vpdpbusd`; the sums wrap modulo 2^32 like it.
 ///
@@ -351,7 +353,7 @@ macro_rules! widened_i8 {
 
             /// Steps (four inputs each) of a tile's points widened at a time: 1,024 inputs, 2 KiB
             /// of stack per point. A layer with more inputs is summed in chunks.
-            pub const CHUNK_STEPS: usize = 256;
+            const CHUNK_STEPS: usize = 256;
 
             /// Points per register tile.
             const POINTS: usize = $points;
@@ -433,8 +435,9 @@ macro_rules! widened_i8 {
                 }
             }
 
-            /// Sign-extends `x`'s steps into point `i`'s pairs of `steps` (as many steps as it holds;
-            /// inputs past the end of `x` count as zero): 32 bytes, eight steps, per iteration.
+            /// Sign-extends `x`'s steps into point `i`'s pairs of `steps` (as many steps as it
+            /// holds; inputs past the end of `x` count as zero): 32 bytes, eight steps, per
+            /// iteration.
             #[inline]
             #[target_feature(enable = $features)]
             fn widen(x: &[i8], steps: &mut [[[i32; 2]; POINTS]], i: usize) {
@@ -445,8 +448,8 @@ macro_rules! widened_i8 {
                     bytes[..n].copy_from_slice(&src[..n]);
                     let v = ld256_i8(&bytes);
                     let (mut even, mut odd) = ([0i32; 8], [0i32; 8]);
-                    // SAFETY: `even` and `odd` are 32 writable bytes each; `storeu` has no alignment
-                    // requirement.
+                    // SAFETY: `even` and `odd` are 32 writable bytes each; `storeu` has no
+                    // alignment requirement.
                     unsafe {
                         let ev = _mm256_srai_epi16::<8>(_mm256_slli_epi16::<8>(v));
                         _mm256_storeu_si256(even.as_mut_ptr().cast(), ev);
