@@ -25,7 +25,12 @@
 //! fraction sums add up in the same order as the reference: the first turns each word into its
 //! slice and fraction, counts its `(slice, row)` bin and scatters it by column into buffer B
 //! (the bin written into the word), the second scatters by bin back into A. A final pass merges
-//! runs of equal cells into points, written over the consumed prefix of A and B.
+//! runs of equal cells into points, written over the consumed prefix of A and B; a point keeps
+//! its row bin, split into slice and row when the point is read.
+//!
+//! In a window whose events came in time order (every real recording's), slices are runs of
+//! arrival order: the close finds each run's end by bisection with the same f64 arithmetic and
+//! gives its events their slice without computing one per event.
 //!
 //! # Odd input, defined
 //! - A pixel outside the configured sensor is dropped and counted ([`RasterStats::dropped_out_of_range`]).
@@ -57,21 +62,18 @@ pub const DEFAULT_WINDOW_EVENTS: u32 = 7_500;
 /// The normalization factor of the reference code: keeps the last event inside slice `K - 1`.
 const SPAN_FACTOR: f64 = 1.001;
 
-// Layout of a buffered event word (before close):   x:11 | y:10 | p:1 | (spare) | t_off:32 (i32)
-// Layout of a sorted word (after the slice pass):   x:11 | row bin k·H + y:13 | p:1 | f32 bits:32
-// Layout of a point, word A:                        x:11 | y:10 | k:3 | cnt:32 (from bit 32)
+// Layout of a buffered event word (before close):   x:11 | p:1 | y:10 | (zero):10 | t_off:32 (i32)
+// Layout of a sorted word (after the slice pass):   x:11 | p:1 | row bin k·H + y:13 | (zero):7 | f32 bits:32
+// Layout of a point, word A:                        x:11 | (zero):1 | row bin k·H + y:13 | (zero):7 | cnt:32
 // Layout of a point, word B:                        f_acc f32 bits:32 | p_acc i32:32
-const X_BITS: u32 = 11;
-const Y_SHIFT: u32 = 11;
-const P_SHIFT: u32 = 21;
-const X_MASK: u64 = (1 << X_BITS) - 1;
-const Y_MASK: u64 = (1 << 10) - 1;
-const K_MASK: u64 = (1 << 3) - 1;
-const RB_SHIFT: u32 = 11;
-/// Row bins `k·H + y` stay below `MAX_SLICES · MAX_HEIGHT = 8,192`.
+//
+// The row bin sits where the row was: a sorted word's low half is its buffered word's plus
+// `k·H << RB_SHIFT`, and its bin is that half shifted down (bins stay below
+// `MAX_SLICES · MAX_HEIGHT = 8,192`: 13 bits).
+const X_MASK: u64 = (1 << 11) - 1;
+const P_SHIFT: u32 = 11;
+const RB_SHIFT: u32 = 12;
 const RB_MASK: u64 = (1 << 13) - 1;
-const SORTED_P_SHIFT: u32 = 24;
-const POINT_K_SHIFT: u32 = 21;
 
 /// When a window closes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -495,8 +497,8 @@ impl<S: RasterStorage> Rasterizer<S> {
                 t_last = e.t;
                 if let (Some(slot), Some(bin)) = (slots.next(), hist_x.get_mut(usize::from(e.x))) {
                     *slot = u64::from(e.x)
-                        | u64::from(e.y) << Y_SHIFT
                         | u64::from(e.on) << P_SHIFT
+                        | u64::from(e.y) << RB_SHIFT
                         | u64::from(d as i32 as u32) << 32;
                     *bin += 1;
                 }
@@ -548,6 +550,7 @@ impl<S: RasterStorage> Rasterizer<S> {
             a: &a[..points],
             b: &b[..points],
             slices: self.config.slices,
+            rows: RowDecoder::new(self.config.height),
             summary: self.summary,
         }
     }
@@ -599,8 +602,8 @@ impl<S: RasterStorage> Rasterizer<S> {
             parts.hist_x.get_mut(usize::from(event.x)),
         ) {
             *slot = u64::from(event.x)
-                | u64::from(event.y) << Y_SHIFT
                 | u64::from(event.on) << P_SHIFT
+                | u64::from(event.y) << RB_SHIFT
                 | u64::from(off as u32) << 32;
             *bin += 1;
         }
@@ -637,7 +640,8 @@ impl<S: RasterStorage> Rasterizer<S> {
                 t_max: self.t_first + i64::from(off_max),
             }
         };
-        let points = rasterize(&self.config, parts, n, off_min, off_max);
+        let in_order = !self.disordered;
+        let points = rasterize(&self.config, parts, n, (off_min, off_max), in_order);
         self.phase = Phase::Closed { points };
         self.stats.windows += 1;
     }
@@ -699,7 +703,13 @@ fn offset_range(words: &[u64]) -> (i32, i32) {
 /// through `get`: every index is in range by construction (columns and rows were checked when
 /// the events were stored, the prefix sums count exactly the events), and a firmware built
 /// from this code links no panic path for them.
-fn rasterize(c: &RasterConfig, p: RasterParts<'_>, n: usize, off_min: i32, off_max: i32) -> usize {
+fn rasterize(
+    c: &RasterConfig,
+    p: RasterParts<'_>,
+    n: usize,
+    offsets: (i32, i32),
+    in_order: bool,
+) -> usize {
     let (Some(events), Some(sorted)) = (p.a.get_mut(..n), p.b.get_mut(..n)) else {
         return 0;
     };
@@ -714,10 +724,33 @@ fn rasterize(c: &RasterConfig, p: RasterParts<'_>, n: usize, off_min: i32, off_m
     };
     // Stable LSD counting sort: by column (while assigning slices), then by (slice, row).
     exclusive_prefix_sum(hist_x);
-    slice_and_sort_by_column(c, events, sorted, hist_x, hist_rows, off_min, off_max);
+    let slices = Slices::new(c, offsets);
+    let mut scatter = ColumnScatter {
+        sorted,
+        starts: hist_x,
+        hist_rows,
+        slice_step: u64::from(c.height) << RB_SHIFT,
+    };
+    if in_order && slices.span > 0.0 {
+        // Offsets never decrease in arrival order, nor do slices: each slice is one run of
+        // events, found by bisection, and its events need no slice index of their own.
+        let mut rest: &[u64] = events;
+        for k in 0..u32::from(c.slices) {
+            let len = if k + 1 == u32::from(c.slices) {
+                rest.len()
+            } else {
+                rest.partition_point(|&w| slices.position(offset(w)) < f64::from(k + 1))
+            };
+            let (run, tail) = rest.split_at_checked(len).unwrap_or((rest, &[]));
+            scatter.run(run, |off| (k, slices.fraction_in(off, k)));
+            rest = tail;
+        }
+    } else {
+        scatter.run(events, |off| slices.slice_and_fraction(off));
+    }
     exclusive_prefix_sum(hist_rows);
     for &w in sorted.iter() {
-        let key = ((w >> RB_SHIFT) & RB_MASK) as usize;
+        let key = (w as u32 >> RB_SHIFT) as usize;
         if let Some(start) = hist_rows.get_mut(key) {
             let at = *start as usize;
             *start += 1;
@@ -726,30 +759,51 @@ fn rasterize(c: &RasterConfig, p: RasterParts<'_>, n: usize, off_min: i32, off_m
             }
         }
     }
-    merge_cells(p.a, p.b, n, c.height)
+    merge_cells(p.a, p.b, n)
 }
 
-/// One pass over the window's event words (`events`, in arrival order): replaces each time
-/// offset by its slice and f32 fraction, with the reference's f64 arithmetic, counts the
-/// `(slice, row)` bins, and scatters the sorted-word form (`x | row bin | p | fraction`) into
-/// `sorted` by column, stably (`starts`: the columns' exclusive prefix sums).
-fn slice_and_sort_by_column(
-    c: &RasterConfig,
-    events: &[u64],
-    sorted: &mut [u64],
-    starts: &mut [u32],
-    hist_rows: &mut [u32],
-    off_min: i32,
-    off_max: i32,
-) {
-    let span = f64::from(off_max) - f64::from(off_min);
-    let slices = f64::from(c.slices);
-    let height = u64::from(c.height);
-    for &w in events {
-        let off = (w >> 32) as u32 as i32;
-        let (k, frac) = if span > 0.0 {
-            // Same operations, in the same order, as the reference (float64).
-            let tn = (f64::from(off) - f64::from(off_min)) / span / SPAN_FACTOR * slices;
+/// A buffered word's time offset.
+#[inline(always)]
+fn offset(w: u64) -> i32 {
+    (w >> 32) as u32 as i32
+}
+
+/// The reference's slice arithmetic for one window's offsets.
+#[derive(Clone, Copy)]
+struct Slices {
+    off_min: f64,
+    span: f64,
+    slices: f64,
+}
+
+impl Slices {
+    fn new(c: &RasterConfig, (off_min, off_max): (i32, i32)) -> Self {
+        Self {
+            off_min: f64::from(off_min),
+            span: f64::from(off_max) - f64::from(off_min),
+            slices: f64::from(c.slices),
+        }
+    }
+
+    /// `tn`: the same operations, in the same order, as the reference (float64). Monotone in
+    /// `off` (each step is a correctly rounded operation with a positive constant), so a run of
+    /// non-decreasing offsets is a run of non-decreasing slices.
+    #[inline(always)]
+    fn position(self, off: i32) -> f64 {
+        (f64::from(off) - self.off_min) / self.span / SPAN_FACTOR * self.slices
+    }
+
+    /// The fraction of an offset known to lie in slice `k`.
+    #[inline(always)]
+    fn fraction_in(self, off: i32, k: u32) -> f32 {
+        (self.position(off) - f64::from(k)) as f32
+    }
+
+    /// Slice and fraction of an offset (slice 0, fraction 0 when the window has no span).
+    #[inline(always)]
+    fn slice_and_fraction(self, off: i32) -> (u32, f32) {
+        if self.span > 0.0 {
+            let tn = self.position(off);
             // `off − off_min` is in [0, span] (the window's offsets lie between its
             // extremes), so the first quotient is in [0, 1], the second at most
             // f64(1 / 1.001) < 0.9991 and `tn` below 0.9991 · K: truncation is floor and
@@ -759,20 +813,39 @@ fn slice_and_sort_by_column(
             (k, (tn - f64::from(k)) as f32)
         } else {
             (0, 0.0)
-        };
-        let bin = u64::from(k) * height + ((w >> Y_SHIFT) & Y_MASK);
-        if let Some(count) = hist_rows.get_mut(bin as usize) {
-            *count += 1;
         }
-        let x = w & X_MASK;
-        if let Some(start) = starts.get_mut(x as usize) {
-            let at = *start as usize;
-            *start += 1;
-            if let Some(slot) = sorted.get_mut(at) {
-                *slot = x
-                    | bin << RB_SHIFT
-                    | ((w >> P_SHIFT) & 1) << SORTED_P_SHIFT
-                    | u64::from(frac.to_bits()) << 32;
+    }
+}
+
+/// The first counting-sort pass: buffered words (in arrival order) to their sorted-word form
+/// (`x | p | row bin | fraction`), scattered into `sorted` by column, stably (`starts`: the
+/// columns' exclusive prefix sums), with the `(slice, row)` bins counted.
+struct ColumnScatter<'a> {
+    sorted: &'a mut [u64],
+    starts: &'a mut [u32],
+    hist_rows: &'a mut [u32],
+    /// One slice's step of the row field: `H << RB_SHIFT`.
+    slice_step: u64,
+}
+
+impl ColumnScatter<'_> {
+    /// Scatters `events`, each offset's slice and fraction given by `slice_of`.
+    #[inline(always)]
+    fn run(&mut self, events: &[u64], slice_of: impl Fn(i32) -> (u32, f32)) {
+        for &w in events {
+            let (k, frac) = slice_of(offset(w));
+            // The row field becomes the row bin `k·H + y`.
+            let low = (w & 0xffff_ffff) + u64::from(k) * self.slice_step;
+            if let Some(count) = self.hist_rows.get_mut((low >> RB_SHIFT) as usize) {
+                *count += 1;
+            }
+            let x = w & X_MASK;
+            if let Some(start) = self.starts.get_mut(x as usize) {
+                let at = *start as usize;
+                *start += 1;
+                if let Some(slot) = self.sorted.get_mut(at) {
+                    *slot = low | u64::from(frac.to_bits()) << 32;
+                }
             }
         }
     }
@@ -791,12 +864,11 @@ fn exclusive_prefix_sum(bins: &mut [u32]) {
 ///
 /// Point `j` is written only after event `j` has been read (there are never more points than
 /// events read so far), so the merge runs in place.
-fn merge_cells(a: &mut [u64], b: &mut [u64], n: usize, height: u16) -> usize {
+fn merge_cells(a: &mut [u64], b: &mut [u64], n: usize) -> usize {
     const CELL_MASK: u64 = X_MASK | RB_MASK << RB_SHIFT;
     let Some(&first) = a.first() else {
         return 0;
     };
-    let rows = RowDecoder::new(height);
     let mut points = 0;
     let mut cell = first & CELL_MASK;
     // ON events are counted; p_acc = ON − OFF = 2·ON − cnt at the end of each cell.
@@ -804,25 +876,25 @@ fn merge_cells(a: &mut [u64], b: &mut [u64], n: usize, height: u16) -> usize {
     for i in 0..n.min(a.len()) {
         let w = a[i];
         if w & CELL_MASK != cell {
-            write_point(a, b, points, rows.point(cell), cnt, on, f_acc);
+            write_point(a, b, points, cell, cnt, on, f_acc);
             points += 1;
             cell = w & CELL_MASK;
             (cnt, on, f_acc) = (0, 0, 0.0);
         }
         cnt += 1;
-        on += ((w >> SORTED_P_SHIFT) & 1) as u32;
+        on += ((w >> P_SHIFT) & 1) as u32;
         f_acc += f32::from_bits((w >> 32) as u32);
     }
-    write_point(a, b, points, rows.point(cell), cnt, on, f_acc);
+    write_point(a, b, points, cell, cnt, on, f_acc);
     points + 1
 }
 
-/// Turns a sorted word's cell (`x | row bin`, row bin `k·H + y`) into the point word's
-/// `x | y | k` with a multiply by a reciprocal instead of a division: `k = ⌊bin · m / 2³²⌋`
+/// Splits a point's row bin `k·H + y` into `(k, y)` when the point is read, with a multiply by
+/// a reciprocal instead of a division: `k = ⌊bin · m / 2³²⌋`
 /// with `m = ⌈2³² / H⌉` is exact for every bin below `8 · H ≤ 8,192` (the error
 /// `bin · (m − 2³²/H) / 2³² < 2⁻¹⁹` never reaches the next integer, since the fraction of
 /// `bin / H` is at most `1 − 1/H ≤ 1 − 2⁻¹⁰`; `core/src/raster.rs`'s tests check every `H`).
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Debug)]
 struct RowDecoder {
     height: u64,
     reciprocal: u64,
@@ -842,13 +914,6 @@ impl RowDecoder {
     fn split(self, bin: u64) -> (u64, u64) {
         let k = (bin * self.reciprocal) >> 32;
         (k, bin - k * self.height)
-    }
-
-    /// The point word's cell bits of a sorted word's cell.
-    #[inline(always)]
-    fn point(self, cell: u64) -> u64 {
-        let (k, y) = self.split((cell >> RB_SHIFT) & RB_MASK);
-        (cell & X_MASK) | y << Y_SHIFT | k << POINT_K_SHIFT
     }
 }
 
@@ -878,6 +943,7 @@ pub struct Window<'a> {
     a: &'a [u64],
     b: &'a [u64],
     slices: u8,
+    rows: RowDecoder,
     summary: WindowSummary,
 }
 
@@ -888,6 +954,7 @@ impl Default for Window<'_> {
             a: &[],
             b: &[],
             slices: DEFAULT_SLICES,
+            rows: RowDecoder::new(1),
             summary: WindowSummary::default(),
         }
     }
@@ -911,27 +978,34 @@ impl<'a> Window<'a> {
 
     /// Point `i` in (slice, y, x) order, or `None` past the end.
     pub fn get(&self, i: usize) -> Option<Point> {
-        Some(decode_point(*self.a.get(i)?, *self.b.get(i)?, self.slices))
+        Some(decode_point(
+            *self.a.get(i)?,
+            *self.b.get(i)?,
+            self.slices,
+            self.rows,
+        ))
     }
 
     /// The points in (slice, y, x) order.
     pub fn iter(&self) -> impl ExactSizeIterator<Item = Point> + 'a {
-        let slices = self.slices;
+        let (slices, rows) = (self.slices, self.rows);
         self.a
             .iter()
             .zip(self.b)
-            .map(move |(&wa, &wb)| decode_point(wa, wb, slices))
+            .map(move |(&wa, &wb)| decode_point(wa, wb, slices, rows))
     }
 }
 
-fn decode_point(wa: u64, wb: u64, slices: u8) -> Point {
-    let slice = ((wa >> POINT_K_SHIFT) & K_MASK) as u8;
+fn decode_point(wa: u64, wb: u64, slices: u8, rows: RowDecoder) -> Point {
+    let (k, y) = rows.split((wa >> RB_SHIFT) & RB_MASK);
+    // A row bin is below 8 · 1,024, so `k < 8` and `y < 1,024`.
+    let (slice, y) = (k as u8, y as u16);
     let cnt = (wa >> 32) as u32;
     let f_acc = f32::from_bits(wb as u32);
     let k = f32::from(slices);
     Point {
         x: (wa & X_MASK) as u16,
-        y: ((wa >> Y_SHIFT) & Y_MASK) as u16,
+        y,
         slice,
         // Same f32 operations as the reference: (f_acc / cnt) / K + k / K.
         t_avg: (f_acc / cnt as f32) / k + f32::from(slice) / k,

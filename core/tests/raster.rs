@@ -437,3 +437,50 @@ fn memory_per_event_is_within_budget() {
     assert_eq!(bytes, 16 * 7_500 + 4 * (346 + 1_040));
     assert!(bytes as f64 / 7_500.0 <= 20.0);
 }
+
+/// In-order windows take their slices from runs of arrival order whose ends are found by
+/// bisection: events on both sides of every slice boundary, for every slice count and spans
+/// of many sizes (the boundaries of `tn` fall between, and exactly on, integer offsets),
+/// rasterize like the reference.
+#[test]
+fn in_order_slice_runs_end_where_the_reference_slices_change() {
+    type Wide = InlineStorage<512, 16, 64>;
+    for slices in 1..=8u8 {
+        for span in [
+            1i64,
+            2,
+            3,
+            7,
+            100,
+            1_001,
+            4_004,
+            65_537,
+            999_999,
+            2_000_000_000,
+        ] {
+            let mut offsets = vec![0, span];
+            for j in 1..i64::from(slices) {
+                let at = (j as f64 * span as f64 * 1.001 / f64::from(slices)) as i64;
+                offsets.extend((at - 2..=at + 2).filter(|t| (0..=span).contains(t)));
+            }
+            offsets.sort_unstable();
+            let events: Vec<Event> = offsets
+                .iter()
+                .enumerate()
+                .map(|(i, &t)| {
+                    Event::new((i % 16) as u16, (i / 3 % 8) as u16, 5_000 + t, i % 2 == 0)
+                })
+                .collect();
+            let c = RasterConfig {
+                slices,
+                ..config(WindowRule::Events(512))
+            };
+            let mut r = Rasterizer::new(c, Wide::new()).unwrap();
+            assert_eq!(
+                window_of(&mut r, &events),
+                reference(&events, &c),
+                "K = {slices}, span {span}"
+            );
+        }
+    }
+}
