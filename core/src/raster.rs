@@ -16,6 +16,7 @@
 //! No dense `K × H × W` grid (346 × 260 × 4 cells would not fit an MCU). A window of capacity
 //! `C` uses two `u64` words per event (16 bytes, the output points included) plus one `u32`
 //! histogram bin per column and per `(slice, row)`: for DAVIS346 and `K = 4`, 5.5 KiB whatever `C`.
+//! The close also takes 256 bytes of stack (a chunk of 64 fractions).
 //!
 //! # Algorithm
 //! While a window fills, each event is packed into one word of buffer A and counted in a
@@ -347,6 +348,8 @@ pub struct Rasterizer<S> {
     pending: Option<Event>,
     stats: RasterStats,
     summary: WindowSummary,
+    /// Splits the points' row bins (the sensor height's reciprocal, computed once).
+    rows: RowDecoder,
 }
 
 impl<S: RasterStorage> Rasterizer<S> {
@@ -373,6 +376,7 @@ impl<S: RasterStorage> Rasterizer<S> {
             pending: None,
             stats: RasterStats::default(),
             summary: WindowSummary::default(),
+            rows: RowDecoder::new(config.height),
         };
         r.begin_window();
         Ok(r)
@@ -550,7 +554,7 @@ impl<S: RasterStorage> Rasterizer<S> {
             a: &a[..points],
             b: &b[..points],
             slices: self.config.slices,
-            rows: RowDecoder::new(self.config.height),
+            rows: self.rows,
             summary: self.summary,
         }
     }
@@ -934,7 +938,8 @@ impl RowDecoder {
 }
 
 fn write_point(a: &mut [u64], b: &mut [u64], j: usize, cell: u64, cnt: u32, on: u32, f_acc: f32) {
-    let p_acc = (2 * on) as i32 - cnt as i32;
+    // Wrapping: exact for cells of fewer than 2^31 events, and no overflow panic beyond.
+    let p_acc = (on.wrapping_mul(2) as i32).wrapping_sub(cnt as i32);
     if let (Some(wa), Some(wb)) = (a.get_mut(j), b.get_mut(j)) {
         *wa = cell | u64::from(cnt) << 32;
         *wb = u64::from(f_acc.to_bits()) | u64::from(p_acc as u32) << 32;

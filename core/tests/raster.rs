@@ -439,31 +439,27 @@ fn memory_per_event_is_within_budget() {
 }
 
 /// In-order windows take their slices from runs of arrival order whose ends are found by
-/// bisection: events on both sides of every slice boundary, for every slice count and spans
-/// of many sizes (the boundaries of `tn` fall between, and exactly on, integer offsets),
-/// rasterize like the reference.
+/// bisection: for every slice count, every offset of small spans and the offsets on both sides
+/// of every slice boundary of larger ones (the boundaries of `tn` fall between, and exactly on,
+/// integer offsets), events rasterize like the reference.
 #[test]
 fn in_order_slice_runs_end_where_the_reference_slices_change() {
     type Wide = InlineStorage<512, 16, 64>;
+    let mut windows: Vec<(i64, Vec<i64>)> = (1..=300).map(|s| (s, (0..=s).collect())).collect();
+    for span in [1_001i64, 4_004, 65_537, 999_999, 2_000_000_000] {
+        windows.push((span, Vec::new()));
+    }
     for slices in 1..=8u8 {
-        for span in [
-            1i64,
-            2,
-            3,
-            7,
-            100,
-            1_001,
-            4_004,
-            65_537,
-            999_999,
-            2_000_000_000,
-        ] {
-            let mut offsets = vec![0, span];
-            for j in 1..i64::from(slices) {
-                let at = (j as f64 * span as f64 * 1.001 / f64::from(slices)) as i64;
-                offsets.extend((at - 2..=at + 2).filter(|t| (0..=span).contains(t)));
+        for (span, offsets) in &windows {
+            let mut offsets = offsets.clone();
+            if offsets.is_empty() {
+                offsets = vec![0, *span];
+                for j in 1..i64::from(slices) {
+                    let at = (j as f64 * *span as f64 * 1.001 / f64::from(slices)) as i64;
+                    offsets.extend((at - 2..=at + 2).filter(|t| (0..=*span).contains(t)));
+                }
+                offsets.sort_unstable();
             }
-            offsets.sort_unstable();
             let events: Vec<Event> = offsets
                 .iter()
                 .enumerate()
@@ -483,4 +479,62 @@ fn in_order_slice_runs_end_where_the_reference_slices_change() {
             );
         }
     }
+}
+
+/// Slices of an in-order window longer than the 64 fractions computed at a time (full chunks,
+/// a partial last one, empty slices between), on few cells so that cells sum many fractions.
+#[test]
+fn long_in_order_slices_match_reference() {
+    type Wide = InlineStorage<512, 16, 64>;
+    for slices in [1u8, 2, 8] {
+        for (first, last) in [(63usize, 65usize), (64, 129), (150, 1)] {
+            let times = (0..first as i64)
+                .map(|i| i / 7)
+                .chain((0..last as i64).map(|i| 10_000 - i / 5));
+            let mut times: Vec<i64> = times.collect();
+            times.sort_unstable();
+            let events: Vec<Event> = times
+                .iter()
+                .enumerate()
+                .map(|(i, &t)| Event::new((i % 3) as u16, (i % 2) as u16, t, i % 5 != 0))
+                .collect();
+            let c = RasterConfig {
+                slices,
+                ..config(WindowRule::Events(512))
+            };
+            let mut r = Rasterizer::new(c, Wide::new()).unwrap();
+            assert_eq!(
+                window_of(&mut r, &events),
+                reference(&events, &c),
+                "K = {slices}, {first} + {last} events"
+            );
+        }
+    }
+}
+
+/// The word layouts at their limits: the widest and tallest sensor, eight slices, and the last
+/// pixel (column 2,047, row 1,023, ON) in the last slice, whose row bin is the largest (8,191).
+#[test]
+fn largest_sensor_and_last_row_bin_match_reference() {
+    type Largest = InlineStorage<8, 2048, 8192>;
+    let c = RasterConfig {
+        width: 2048,
+        height: 1024,
+        slices: 8,
+        window: WindowRule::Events(8),
+    };
+    let events = [
+        Event::new(0, 0, 0, false),
+        Event::new(2047, 0, 10, true),
+        Event::new(0, 1023, 500, true),
+        Event::new(2047, 1023, 999, true),
+        Event::new(2047, 1023, 1_000, true),
+        Event::new(2047, 1023, 1_000, false),
+    ];
+    let mut storage = Box::new(Largest::new());
+    let mut r = Rasterizer::new(c, &mut *storage).unwrap();
+    let got = window_of(&mut r, &events);
+    assert_eq!(got, reference(&events, &c));
+    let last = got.last().unwrap();
+    assert_eq!((last.x, last.y, last.slice, last.cnt), (2047, 1023, 7, 3));
 }
