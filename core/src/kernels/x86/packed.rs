@@ -355,6 +355,11 @@ macro_rules! widened_i8 {
             /// of stack per point. A layer with more inputs is summed in chunks.
             const CHUNK_STEPS: usize = 256;
 
+            /// The buffer for layers of up to 128 inputs (every point layer of the MCU model,
+            /// the paper's first ones): 256 bytes per point. A call zeroes its whole buffer,
+            /// which the large one made a few per cent of a narrow layer.
+            const SMALL_CHUNK_STEPS: usize = 32;
+
             /// Points per register tile.
             const POINTS: usize = $points;
 
@@ -370,8 +375,8 @@ macro_rules! widened_i8 {
             /// A tile's points' inputs, widened, step by step: `steps[s][i]` holds point `i`'s two
             /// i16 pairs of step `s`, `(x0, x2)` then `(x1, x3)` (each as the lane value, `x0`
             /// low). Step-major, so the loop walks the steps beside the weight blocks with no
-            /// index checks.
-            type Widened = [[[i32; 2]; POINTS]; CHUNK_STEPS];
+            /// index checks. `C` steps.
+            type Widened<const C: usize> = [[[i32; 2]; POINTS]; C];
 
             #[doc = concat!("[`crate::kernels::packed::matmat_packed_i8`], bit-exact, with `", $features, "`.")]
             ///
@@ -388,8 +393,26 @@ macro_rules! widened_i8 {
                 out_stride: usize,
             ) {
                 let (points, rows) = call_dims(w, x, x_stride, points, bias, out, out_stride);
+                let call = (x, x_stride, points, rows, bias, out, out_stride);
+                if w.steps() <= SMALL_CHUNK_STEPS {
+                    chunked::<SMALL_CHUNK_STEPS>(w, call);
+                } else {
+                    chunked::<CHUNK_STEPS>(w, call);
+                }
+            }
+
+            /// `(x, x_stride, points, rows, bias, out, out_stride)` of a checked call.
+            type Call<'a> = (&'a [i8], usize, usize, usize, &'a [i32], &'a mut [i32], usize);
+
+            /// The kernel over a widened buffer of `C` steps.
+            #[inline]
+            #[target_feature(enable = $features)]
+            fn chunked<const C: usize>(
+                w: &PackedI8<'_>,
+                (x, x_stride, points, rows, bias, out, out_stride): Call<'_>,
+            ) {
                 let (k, steps) = (w.k(), w.steps());
-                let mut buf: Widened = [[[0; 2]; POINTS]; CHUNK_STEPS];
+                let mut buf: Widened<C> = [[[0; 2]; POINTS]; C];
                 let mut first = 0;
                 while first < points {
                     let m = (points - first).min(POINTS);
@@ -399,7 +422,7 @@ macro_rules! widened_i8 {
                     }
                     let mut s0 = 0;
                     while s0 < steps {
-                        let n = (steps - s0).min(CHUNK_STEPS);
+                        let n = (steps - s0).min(C);
                         for i in 0..m {
                             let row = &x[(first + i) * x_stride..][..k];
                             let chunk = row.get(s0 * 4..).unwrap_or(&[]);
