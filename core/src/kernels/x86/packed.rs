@@ -36,7 +36,8 @@
 
 use core::arch::x86_64::*;
 
-use super::{ld256_i8, vnni_correction};
+// The row-major kernels' `vpmaddwd` + add stand in for `vpdpwssd` (the same wrapping sums).
+use super::{avx2_mac_i16, avx512bw_mac_i16, ld256_i8, vnni_correction};
 use crate::kernels::packed::{call_dims, Block, Lane, Packed, PackedI16, PackedI8, GROUP_ROWS};
 
 /// Points per register tile.
@@ -306,7 +307,7 @@ packed_loop! {
     zero: _mm256_setzero_si256,
     set1: _mm256_set1_epi32,
     load: load256,
-    dpwssd: dpwssd_avx2,
+    dpwssd: avx2_mac_i16,
     store: store256,
 }
 
@@ -579,22 +580,8 @@ packed_loop! {
     zero: _mm512_setzero_si512,
     set1: _mm512_set1_epi32,
     load: load512,
-    dpwssd: dpwssd_avx512bw,
+    dpwssd: avx512bw_mac_i16,
     store: store512,
-}
-
-/// `vpdpwssd` on AVX-512BW: `acc + vpmaddwd(w, x)`, the same wrapping sums.
-#[inline]
-#[target_feature(enable = "avx512bw")]
-fn dpwssd_avx512bw(acc: __m512i, w: __m512i, x: __m512i) -> __m512i {
-    _mm512_add_epi32(acc, _mm512_madd_epi16(w, x))
-}
-
-/// `vpdpwssd` on AVX2: `acc + vpmaddwd(w, x)`, the same wrapping sums.
-#[inline]
-#[target_feature(enable = "avx2")]
-fn dpwssd_avx2(acc: __m256i, w: __m256i, x: __m256i) -> __m256i {
-    _mm256_add_epi32(acc, _mm256_madd_epi16(w, x))
 }
 
 /// Register `reg` (bytes `64·reg..`) of a block; `reg < 4`.
