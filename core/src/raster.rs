@@ -695,7 +695,7 @@ fn check_config(
 /// The smallest and largest time offsets of buffered event words.
 fn offset_range(words: &[u64]) -> (i32, i32) {
     words.iter().fold((i32::MAX, i32::MIN), |(lo, hi), &w| {
-        let off = (w >> 32) as u32 as i32;
+        let off = offset(w);
         (lo.min(off), hi.max(off))
     })
 }

@@ -438,13 +438,26 @@ fn memory_per_event_is_within_budget() {
     assert!(bytes as f64 / 7_500.0 <= 20.0);
 }
 
+/// Storage for the in-order slice tests: up to 512 events on the 16 × 8 test sensor, K ≤ 8.
+type Wide = InlineStorage<512, 16, 64>;
+
+/// Rasterizes `events` (one window, in time order) with `slices` slices and compares with the
+/// reference; `what` names the case.
+fn assert_window_matches_reference(events: &[Event], slices: u8, what: &str) {
+    let c = RasterConfig {
+        slices,
+        ..config(WindowRule::Events(512))
+    };
+    let mut r = Rasterizer::new(c, Wide::new()).unwrap();
+    assert_eq!(window_of(&mut r, events), reference(events, &c), "{what}");
+}
+
 /// In-order windows take their slices from runs of arrival order whose ends are found by
 /// bisection: for every slice count, every offset of small spans and the offsets on both sides
 /// of every slice boundary of larger ones (the boundaries of `tn` fall between, and exactly on,
 /// integer offsets), events rasterize like the reference.
 #[test]
 fn in_order_slice_runs_end_where_the_reference_slices_change() {
-    type Wide = InlineStorage<512, 16, 64>;
     let mut windows: Vec<(i64, Vec<i64>)> = (1..=300).map(|s| (s, (0..=s).collect())).collect();
     for span in [1_001i64, 4_004, 65_537, 999_999, 2_000_000_000] {
         windows.push((span, Vec::new()));
@@ -467,16 +480,7 @@ fn in_order_slice_runs_end_where_the_reference_slices_change() {
                     Event::new((i % 16) as u16, (i / 3 % 8) as u16, 5_000 + t, i % 2 == 0)
                 })
                 .collect();
-            let c = RasterConfig {
-                slices,
-                ..config(WindowRule::Events(512))
-            };
-            let mut r = Rasterizer::new(c, Wide::new()).unwrap();
-            assert_eq!(
-                window_of(&mut r, &events),
-                reference(&events, &c),
-                "K = {slices}, span {span}"
-            );
+            assert_window_matches_reference(&events, slices, &format!("K = {slices}, span {span}"));
         }
     }
 }
@@ -485,7 +489,6 @@ fn in_order_slice_runs_end_where_the_reference_slices_change() {
 /// a partial last one, empty slices between), on few cells so that cells sum many fractions.
 #[test]
 fn long_in_order_slices_match_reference() {
-    type Wide = InlineStorage<512, 16, 64>;
     for slices in [1u8, 2, 8] {
         for (first, last) in [(63usize, 65usize), (64, 129), (150, 1)] {
             let times = (0..first as i64)
@@ -498,16 +501,8 @@ fn long_in_order_slices_match_reference() {
                 .enumerate()
                 .map(|(i, &t)| Event::new((i % 3) as u16, (i % 2) as u16, t, i % 5 != 0))
                 .collect();
-            let c = RasterConfig {
-                slices,
-                ..config(WindowRule::Events(512))
-            };
-            let mut r = Rasterizer::new(c, Wide::new()).unwrap();
-            assert_eq!(
-                window_of(&mut r, &events),
-                reference(&events, &c),
-                "K = {slices}, {first} + {last} events"
-            );
+            let what = format!("K = {slices}, {first} + {last} events");
+            assert_window_matches_reference(&events, slices, &what);
         }
     }
 }
