@@ -222,3 +222,40 @@ fn blobs_found_by_the_fuzzer_are_errors() {
         other => panic!("expected a layer error, got {other:?}"),
     }
 }
+
+/// Requantization scales must be finite: the Cortex-M7 requantization (`kernels::arm`) rounds
+/// before it saturates, which equals the reference's clamp-then-round only for numbers.
+#[test]
+fn non_finite_requantization_scales_are_errors() {
+    use evpose_core::model::{entry, header, CRC, ENTRY_LEN};
+    let bytes = small_i8_blob();
+    let u32_at = |b: &[u8], o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap()) as usize;
+    let table = u32_at(&bytes, header::TABLE);
+    let layers = usize::from(u16::from_le_bytes([
+        bytes[header::LAYERS],
+        bytes[header::LAYERS + 1],
+    ]));
+    // Every layer that requantizes (point and FC layers, kinds 0 and 1; the heads' scales are
+    // their logit scales), one bad value each time.
+    let with_scales: Vec<usize> = (0..layers)
+        .map(|i| table + i * ENTRY_LEN)
+        .filter(|&e| bytes[e + entry::KIND] <= 1)
+        .map(|e| u32_at(&bytes, e + entry::SCALES))
+        .collect();
+    assert_eq!(with_scales.len(), 7, "{with_scales:?}");
+    for &off in &with_scales {
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            let mut b = bytes.clone();
+            b[off + 4..off + 8].copy_from_slice(&bad.to_le_bytes());
+            let crc = CRC.checksum(&b[header::CRC_FROM..]);
+            b[header::CRC..header::CRC + 4].copy_from_slice(&crc.to_le_bytes());
+            match Model::parse(AlignedBlob::new(&b).bytes()) {
+                Err(ModelError::Layer { reason, .. }) => {
+                    assert!(reason.contains("not finite"), "{reason}")
+                }
+                Err(other) => panic!("scale {bad} at {off}: {other:?}"),
+                Ok(_) => panic!("scale {bad} at {off} accepted"),
+            }
+        }
+    }
+}

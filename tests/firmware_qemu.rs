@@ -529,14 +529,17 @@ fn firmware_matches_the_host_core_under_qemu() {
         "the firmware reported an error:\n{text}"
     );
 
-    // The DSP kernels, on the real instructions, against the reference (boot self-test).
+    // The DSP and FPv5 kernels, on the real instructions, against the reference (boot
+    // self-test): i8 matvec, every int8 product, blocked matmat, pooling, i16 matvec and
+    // requantization (five slopes each).
     let selftest = lines
         .iter()
         .find(|l| l.starts_with("selftest:"))
         .unwrap_or_else(|| panic!("no selftest line:\n{text}"));
     assert_eq!(field::<String>(selftest, "kernels"), "armdsp", "{selftest}");
     assert!(
-        field::<u32>(selftest, "cases") >= 71 * 9 + 256 + 8 * 9 * 3 + 11,
+        field::<u32>(selftest, "cases")
+            >= 71 * 9 + 256 + 8 * 9 * 3 + 11 + 70 * 9 + (4 * 256 + 5 * 8) * 5,
         "{selftest}"
     );
     assert_eq!(field::<u32>(selftest, "mismatches"), 0, "{selftest}");

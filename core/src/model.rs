@@ -530,7 +530,16 @@ impl<'a> Model<'a> {
         let head_scales = int8 && self.version >= 3 && !wants_scales;
         match (wants_scales, d.scales) {
             (true, 0) => return Err(err("int8 layer without requantization scales")),
-            (true, off) => self.check_array(off, d.out_dim as usize * 4, i)?,
+            (true, off) => {
+                let n = d.out_dim as usize;
+                self.check_array(off, n * 4, i)?;
+                // Finite scales keep every requantized value a number (the Cortex-M7 kernel
+                // relies on it; a NaN scale would otherwise saturate to -128 in the reference).
+                let scale = |j: usize| f32::from_bits(u32_at(self.blob, off as usize + 4 * j));
+                if !(0..n).all(|j| scale(j).is_finite()) {
+                    return Err(err("requantization scale not finite"));
+                }
+            }
             (false, 0) => {}
             (false, off) if head_scales => {
                 self.check_array(off, d.out_dim as usize * 4, i)?;

@@ -138,6 +138,13 @@ fn check_i16(w: &[i16], x: &[i16], bias: &[i32], out_len: usize) {
         let got = run(|w, x, b, o| k.matvec_i16(w, x, b, o), w, x, bias, &out);
         assert_eq!(got, want, "{} (K = {}, out = {out_len})", k.name(), x.len());
     }
+    // The Cortex-M DSP kernel, on emulated SMLAD here (the real one runs under QEMU).
+    assert_eq!(
+        run(kernels::arm::matvec_i16, w, x, bias, &out),
+        want,
+        "arm::matvec_i16 (emulated, K = {}, out = {out_len})",
+        x.len()
+    );
     if no_overflow || Kernels::best().isa() != Isa::Reference {
         // (A debug build of the reference panics on overflow; the SIMD kernels wrap.)
         assert_eq!(
@@ -1150,8 +1157,15 @@ proptest! {
         acc in prop::collection::vec(
             prop_oneof![any::<i32>(), -100_000i32..100_000, -300i32..300], 0..200),
         scales in prop::collection::vec(
-            prop_oneof![1e-6f32..1e-2, 1e-2f32..2.0, Just(1.0f32), Just(0.5f32)], 0..200),
-        leaky in prop_oneof![Just(None), Just(Some(0.01f32)), (0.0f32..1.0).prop_map(Some)],
+            prop_oneof![
+                4 => 1e-6f32..1e-2, 4 => 1e-2f32..2.0, 1 => Just(1.0f32), 1 => Just(0.5f32),
+                // Negative, zero and huge scales (the products overflow to ±inf).
+                1 => -2.0f32..0.0, 1 => Just(0.0f32), 1 => Just(f32::MAX)],
+            0..200),
+        leaky in prop_oneof![
+            Just(None), Just(Some(0.01f32)), (0.0f32..1.0).prop_map(Some),
+            // The edges of the Cortex-M kernel's max form, and slopes outside it (reference).
+            Just(Some(0.0f32)), Just(Some(1.0f32)), Just(Some(1.5f32)), Just(Some(-0.2f32))],
     ) {
         let mut want = vec![7i8; acc.len().max(scales.len())];
         reference::requantize_i8(&acc, &scales, leaky, &mut want);
@@ -1168,6 +1182,10 @@ proptest! {
             kern.requantize_i8(&acc, &scales, leaky, &mut got);
             prop_assert_eq!(&got, &want, "{}", kern.name());
         }
+        // The Cortex-M7 kernel's arithmetic (VMAXNM, VCVTR), emulated here.
+        let mut got = vec![7i8; want.len()];
+        kernels::arm::requantize_i8(&acc, &scales, leaky, &mut got);
+        prop_assert_eq!(&got, &want, "arm::requantize_i8 (emulated)");
     }
 
     #[test]
@@ -1238,5 +1256,26 @@ fn cpuid_detection_matches_std() {
     for isa in Isa::ALL {
         // What the build assumes, the CPU must have.
         assert!(!c.supports(isa) || f.supports(isa), "{}", isa.name());
+    }
+}
+
+/// The Cortex-M7 requantization (emulated here; the real `VMAXNM`/`VCVTR` run in the
+/// firmware's self-test) on every accumulator in ±2^17 and the i32 extremes, at scales where
+/// ties (x.5) occur, for every slope form it takes: none, PyTorch's 0.01, the edges 0 and 1,
+/// and a slope it leaves to the reference. Lengths not a multiple of four reach its tail.
+#[test]
+fn arm_requantization_matches_reference_on_every_accumulator_in_range() {
+    let acc: Vec<i32> = (-(1 << 17)..(1 << 17))
+        .chain([i32::MIN, i32::MIN + 1, -1, 0, 1, i32::MAX - 1, i32::MAX])
+        .collect();
+    for scale in [0.003_137_254_9f32, 0.5, 1.0, 0.25, 1e-3, 3.0e-5, -0.5] {
+        let scales = vec![scale; acc.len()];
+        for leaky in [None, Some(0.01f32), Some(0.0), Some(1.0), Some(1.25)] {
+            let mut want = vec![0i8; acc.len()];
+            reference::requantize_i8(&acc, &scales, leaky, &mut want);
+            let mut got = vec![0i8; acc.len()];
+            kernels::arm::requantize_i8(&acc, &scales, leaky, &mut got);
+            assert!(got == want, "scale {scale}, leaky {leaky:?}");
+        }
     }
 }

@@ -19,7 +19,7 @@ const MM_MAX_K: usize = 260;
 
 /// What the self-test found.
 pub struct Report {
-    /// matvec, matmat and pooling calls compared.
+    /// matvec (i8 and i16), matmat, pooling and requantization calls compared.
     pub cases: u32,
     /// Calls whose outputs differ from the reference's in any element.
     pub mismatches: u32,
@@ -29,6 +29,8 @@ pub struct Report {
 struct Rng(u32);
 
 impl Rng {
+    // Not inlined: the array fills would otherwise be unrolled into tens of KiB of flash.
+    #[inline(never)]
     fn next(&mut self) -> u32 {
         self.0 ^= self.0 << 13;
         self.0 ^= self.0 >> 17;
@@ -137,6 +139,74 @@ pub fn kernels(k: &Kernels) -> Report {
         report.cases += 1;
         if (m, s) != (max, sum) {
             report.mismatches += 1;
+        }
+    }
+    // The reference table's kernels, called through its function pointers: inlined here,
+    // the unrolled reference loops cost the image tens of KiB of flash.
+    let reference = Kernels::reference();
+    // The i16 matvec (SMLAD on the stored halfwords; the 15-bit heads and the first layer):
+    // every `K` up to 70 (steps of four and their tails) by 1 to 9 rows, full-range values
+    // (sums that wrap modulo 2^32; the release build's reference wraps too).
+    for kk in 1..=MAX_K {
+        for rows in 1..=MAX_ROWS {
+            let mut w = [0i16; MAX_K * MAX_ROWS];
+            let mut x = [0i16; MAX_K];
+            let mut bias = [0i32; MAX_ROWS];
+            let half = |rng: &mut Rng| match rng.next() % 8 {
+                0 => i16::MIN,
+                1 => i16::MAX,
+                _ => rng.next() as i16,
+            };
+            w.iter_mut().for_each(|v| *v = half(&mut rng));
+            x.iter_mut().for_each(|v| *v = half(&mut rng));
+            bias.iter_mut().for_each(|v| *v = rng.next() as i32);
+            let (w, x, bias) = (&w[..rows * kk], &x[..kk], &bias[..rows]);
+            let (mut got, mut want) = ([0i32; MAX_ROWS], [0i32; MAX_ROWS]);
+            k.matvec_i16(w, x, bias, &mut got[..rows]);
+            reference.matvec_i16(w, x, bias, &mut want[..rows]);
+            report.cases += 1;
+            if got != want {
+                report.mismatches += 1;
+            }
+        }
+    }
+    // Requantization (VCVT, VMUL, VMAXNM, VCVTR, SSAT): every accumulator in ±2^13 at scales
+    // where ties occur, and random ones over the whole i32 range at random scales, each with
+    // no LeakyReLU, PyTorch's slope, the max form's edges 0 and 1, and a slope it leaves to
+    // the reference; lengths 1 to 4 and 37 (the four-output steps and their tails).
+    let mut check_requant = |acc: &[i32], scales: &[f32]| {
+        for leaky in [None, Some(0.01f32), Some(0.0), Some(1.0), Some(1.5)] {
+            let (mut got, mut want) = ([0i8; 64], [0i8; 64]);
+            let n = acc.len();
+            k.requantize_i8(acc, scales, leaky, &mut got[..n]);
+            reference.requantize_i8(acc, scales, leaky, &mut want[..n]);
+            report.cases += 1;
+            if got != want {
+                report.mismatches += 1;
+            }
+        }
+    };
+    for scale in [0.5f32, 0.25, 0.003_137_254_9, 1.0] {
+        let mut acc = [0i32; 64];
+        let mut a = -(1 << 13);
+        while a < (1 << 13) {
+            acc.iter_mut()
+                .enumerate()
+                .for_each(|(i, v)| *v = a + i as i32);
+            check_requant(&acc, &[scale; 64]);
+            a += 64;
+        }
+    }
+    for len in [1, 2, 3, 4, 37] {
+        for _ in 0..8 {
+            let (mut acc, mut scales) = ([0i32; 64], [0f32; 64]);
+            acc.iter_mut()
+                .for_each(|v| *v = rng.next() as i32 >> (rng.next() % 32));
+            // Scales 2^-20..2^4 with random mantissas.
+            scales
+                .iter_mut()
+                .for_each(|v| *v = f32::from_bits((107 + rng.next() % 24) << 23 | rng.next() >> 9));
+            check_requant(&acc[..len], &scales[..len]);
         }
     }
     report

@@ -108,21 +108,36 @@ fn step(acc: i32, w: &[i8; 4], (x02, x13): (u32, u32)) -> i32 {
 
 /// `Σ w·x` over the inputs past the last whole step, wrapping.
 #[inline(always)]
-fn tail(acc: i32, w: &[i8], x: &[i8]) -> i32 {
+fn tail<T: Copy>(acc: i32, w: &[T], x: &[T]) -> i32
+where
+    i32: From<T>,
+{
     w.iter().zip(x).fold(acc, |a, (&w, &x)| {
-        a.wrapping_add(i32::from(w) * i32::from(x))
+        a.wrapping_add(i32::from(w).wrapping_mul(i32::from(x)))
     })
 }
 
 /// `w[start..]`, empty when `start` is past its end.
 #[inline(always)]
-fn past(w: &[i8], start: usize) -> &[i8] {
+fn past<T>(w: &[T], start: usize) -> &[T] {
     w.get(start..).unwrap_or_default()
 }
 
-/// [`super::reference::matvec_i8`], bit-exact, with `SXTB16` and `SMLAD`, two rows at a time
-/// (each unpacked word of `x` serves both). `K = 0` gives `out = bias`.
-pub fn matvec_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
+/// The matvec loop both DSP matvec kernels share: two rows at a time, so that each step of `S`
+/// inputs of `x` is unpacked once (`unpack`) for both; `step(acc, w, u)` adds one step of a
+/// row; an odd last row runs alone, and the inputs past the last whole step go through
+/// [`tail`]. `K = 0` gives `out = bias`.
+#[inline(always)]
+fn matvec_two_rows<T: Copy, U: Copy, const S: usize>(
+    w: &[T],
+    x: &[T],
+    bias: &[i32],
+    out: &mut [i32],
+    unpack: impl Fn(&[T; S]) -> U,
+    step: impl Fn(i32, &[T; S], U) -> i32,
+) where
+    i32: From<T>,
+{
     let k = x.len();
     let n = rows(k, w.len(), bias.len(), out.len());
     // Slices are cut with the checked methods (all in range by `rows`), so that a firmware
@@ -144,8 +159,8 @@ pub fn matvec_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
     ) else {
         return;
     };
-    let (xs, xt) = x.as_chunks::<4>();
-    let full = xs.len() * 4;
+    let (xs, xt) = x.as_chunks::<S>();
+    let full = xs.len() * S;
     let rest = |w| past(w, full);
     for ((ws, y), b) in pairs
         .chunks_exact(k2)
@@ -157,8 +172,7 @@ pub fn matvec_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
         };
         let (mut a0, mut a1) = (b[0], b[1]);
         for ((xv, w0v), w1v) in xs.iter().zip(w0.as_chunks().0).zip(w1.as_chunks().0) {
-            let xw = word(xv);
-            let xu = (sxtb16(xw), sxtb16_ror8(xw));
+            let xu = unpack(xv);
             a0 = step(a0, w0v, xu);
             a1 = step(a1, w1v, xu);
         }
@@ -166,12 +180,52 @@ pub fn matvec_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
     }
     if let ([y], Some(&b)) = (out_last, bias.last()) {
         // An odd row count: the last row alone.
-        let acc = xs.iter().zip(last.as_chunks().0).fold(b, |a, (xv, wv)| {
-            let xw = word(xv);
-            step(a, wv, (sxtb16(xw), sxtb16_ror8(xw)))
-        });
+        let acc = xs
+            .iter()
+            .zip(last.as_chunks().0)
+            .fold(b, |a, (xv, wv)| step(a, wv, unpack(xv)));
         *y = tail(acc, rest(last), xt);
     }
+}
+
+/// [`super::reference::matvec_i8`], bit-exact, with `SXTB16` and `SMLAD`, two rows at a time
+/// (each unpacked word of `x` serves both). `K = 0` gives `out = bias`.
+pub fn matvec_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
+    matvec_two_rows(
+        w,
+        x,
+        bias,
+        out,
+        |xv: &[i8; 4]| {
+            let xw = word(xv);
+            (sxtb16(xw), sxtb16_ror8(xw))
+        },
+        step,
+    );
+}
+
+/// Two i16 as one word, the first in the low halfword (one `LDR`; the Cortex-M4 and M7 load
+/// unaligned words).
+#[inline(always)]
+fn halves([lo, hi]: [i16; 2]) -> u32 {
+    u32::from(lo as u16) | u32::from(hi as u16) << 16
+}
+
+/// [`super::reference::matvec_i16`] (wrapping modulo 2^32), with `SMLAD` on the i16 weights
+/// and inputs as they are stored: two MACs per instruction, four inputs per step, two rows at
+/// a time. The 15-bit SimDR heads run here (3.1 instructions per MAC through the portable
+/// kernel on the M7), and the first layer. `K = 0` gives `out = bias`.
+pub fn matvec_i16(w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]) {
+    matvec_two_rows(
+        w,
+        x,
+        bias,
+        out,
+        |&[a, b, c, d]: &[i16; 4]| (halves([a, b]), halves([c, d])),
+        |acc, &[a, b, c, d]: &[i16; 4], (x01, x23)| {
+            smlad(halves([c, d]), x23, smlad(halves([a, b]), x01, acc))
+        },
+    );
 }
 
 /// Points the blocked [`matmat_i8`] computes per pass over a row of weights; an engine that
@@ -441,13 +495,134 @@ pub fn pool_i8(max: &mut [i8], sum: &mut [i32], y: &[i8]) {
     super::reference::pool_i8(m_rest, s_rest, y_rest);
 }
 
+/// [`super::reference::requantize_i8`], bit-exact, four outputs per pass: with the
+/// `arm-fpv5` feature (Cortex-M7's FPv5 FPU) in inline assembly, everywhere else emulated.
+///
+/// Per output: `VCVT` to f32, `VMUL` by the scale, the LeakyReLU as `VMAXNM(v, α·v)`, then
+/// `VCVTR` (round to nearest, ties to even, saturating: the FPSCR's reset rounding mode) and
+/// `SSAT #8`: about 8.5 instructions against about 18 for the reference's compare, select,
+/// float clamps and magic-number rounding. The max form equals `v < 0 ? α·v : v` for slopes
+/// in `[0, 1]` (`α = 1` is no LeakyReLU); a layer with another slope takes the reference. It
+/// needs finite scales, which [`crate::model::Model::parse`] checks: then `v` is never NaN
+/// (an infinite `v` times `α = 0` is, and `VMAXNM` returns `v`), and rounding first and
+/// saturating after gives the reference's clamp-then-round.
+pub fn requantize_i8(acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut [i8]) {
+    let n = acc.len().min(scales.len()).min(out.len());
+    let (Some(acc), Some(scales), Some(out)) = (acc.get(..n), scales.get(..n), out.get_mut(..n))
+    else {
+        return; // `n` is the shortest length
+    };
+    let alpha = match leaky {
+        None => 1.0,
+        Some(a) if (0.0..=1.0).contains(&a) => a,
+        Some(_) => return super::reference::requantize_i8(acc, scales, leaky, out),
+    };
+    let (a4, a_rest) = acc.as_chunks::<4>();
+    let (s4, s_rest) = scales.as_chunks::<4>();
+    let (o4, o_rest) = out.as_chunks_mut::<4>();
+    requantize_fours(a4, s4, alpha, o4);
+    super::reference::requantize_i8(a_rest, s_rest, leaky, o_rest);
+}
+
+/// [`requantize_i8`]'s four-output steps over the shortest of the three slices.
+#[inline(always)]
+fn requantize_fours(acc: &[[i32; 4]], scales: &[[f32; 4]], alpha: f32, out: &mut [[i8; 4]]) {
+    let n = acc.len().min(scales.len()).min(out.len());
+    #[cfg(all(target_arch = "arm", feature = "arm-fpv5"))]
+    {
+        if n == 0 {
+            return;
+        }
+        // One step: four accumulators and four scales loaded with `VLDMIA`, each output's
+        // f32 arithmetic, two `VMOV`s of two results each, `SSAT` and `STRB`.
+        // SAFETY: the loop reads `n` steps of 16 bytes from `acc` and from `scales` and writes
+        // `n` steps of 4 bytes to `out` (`n` is the shortest length; `VLDMIA` needs the 4-byte
+        // alignment that `i32` and `f32` give, `STRB` none), stopping when the accumulator
+        // pointer reaches `end`; it writes only the named registers and `out`. `VMAXNM` and
+        // `VCVTR` exist on an FPv5 FPU, which the `arm-fpv5` feature promises (the `sreg`
+        // operand needs the double-precision FPU's `vfp2` feature: without it the build fails).
+        unsafe {
+            core::arch::asm!(
+                "2:",
+                "vldmia {pa}!, {{s0-s3}}",
+                "vldmia {ps}!, {{s4-s7}}",
+                "vcvt.f32.s32 s0, s0",
+                "vcvt.f32.s32 s1, s1",
+                "vcvt.f32.s32 s2, s2",
+                "vcvt.f32.s32 s3, s3",
+                "vmul.f32 s0, s0, s4",
+                "vmul.f32 s1, s1, s5",
+                "vmul.f32 s2, s2, s6",
+                "vmul.f32 s3, s3, s7",
+                "vmul.f32 s4, s0, {al}",
+                "vmul.f32 s5, s1, {al}",
+                "vmul.f32 s6, s2, {al}",
+                "vmul.f32 s7, s3, {al}",
+                "vmaxnm.f32 s0, s0, s4",
+                "vmaxnm.f32 s1, s1, s5",
+                "vmaxnm.f32 s2, s2, s6",
+                "vmaxnm.f32 s3, s3, s7",
+                "vcvtr.s32.f32 s0, s0",
+                "vcvtr.s32.f32 s1, s1",
+                "vcvtr.s32.f32 s2, s2",
+                "vcvtr.s32.f32 s3, s3",
+                "vmov {r0}, {r1}, s0, s1",
+                "vmov {r2}, {r3}, s2, s3",
+                "ssat {r0}, #8, {r0}",
+                "ssat {r1}, #8, {r1}",
+                "ssat {r2}, #8, {r2}",
+                "ssat {r3}, #8, {r3}",
+                "strb {r0}, [{po}], #1",
+                "strb {r1}, [{po}], #1",
+                "strb {r2}, [{po}], #1",
+                "strb {r3}, [{po}], #1",
+                "cmp {pa}, {end}",
+                "bne 2b",
+                pa = inout(reg) acc.as_ptr() => _,
+                ps = inout(reg) scales.as_ptr() => _,
+                po = inout(reg) out.as_mut_ptr() => _,
+                end = in(reg) acc.as_ptr().wrapping_add(n),
+                al = in(sreg) alpha,
+                r0 = out(reg) _,
+                r1 = out(reg) _,
+                r2 = out(reg) _,
+                r3 = out(reg) _,
+                out("s0") _,
+                out("s1") _,
+                out("s2") _,
+                out("s3") _,
+                out("s4") _,
+                out("s5") _,
+                out("s6") _,
+                out("s7") _,
+                options(nostack),
+            );
+        }
+    }
+    #[cfg(not(all(target_arch = "arm", feature = "arm-fpv5")))]
+    for ((a, s), o) in acc.iter().zip(scales).zip(out.iter_mut()).take(n) {
+        for ((o, &a), &s) in o.iter_mut().zip(a).zip(s) {
+            let v = a as f32 * s;
+            // VMAXNM returns the number when one operand is NaN, as `f32::max` does; VCVTR
+            // rounds to nearest even and saturates, NaN giving 0, as `rintf` and `as` do.
+            let v = v.max(v * alpha);
+            *o = (libm::rintf(v) as i32).clamp(-128, 127) as i8;
+        }
+    }
+}
+
 /// The DSP kernel table (see [`super::Kernels`]); only built where the instructions are real.
 #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
 pub(super) const fn kernels() -> super::Kernels {
     let mut k = super::Kernels::reference();
     k.isa = super::Isa::ArmDsp;
     k.i8 = matvec_i8;
+    k.i16 = matvec_i16;
     k.i8mm = matmat_i8;
     k.pool = pool_i8;
+    #[cfg(feature = "arm-fpv5")]
+    {
+        k.requant = requantize_i8;
+    }
     k
 }
