@@ -14,8 +14,10 @@
 //! | Cortex-M4 | 1.25 | single-issue, 3-stage; loads take 2 cycles, one load per 2–3 instructions in the kernels |
 //! | Cortex-M33 | 1.2 | single-issue, 3-stage like the M4, with the DSP extension (assumed present) |
 //!
-//! The M4 and M33 run the same Thumb-2 + DSP instructions the M7 image uses, so the measured
-//! instruction counts carry over; caches and flash wait states are not modelled.
+//! The M4 and M33 run the same Thumb-2 + DSP instructions the M7 image uses, except the FPv5
+//! requantization (`VMAXNM`, `VCVTR`; feature `arm-fpv5`): their point layers and FC layers
+//! take the per-MAC costs of the same image built without it, measured beside the M7's.
+//! Caches and flash wait states are not modelled.
 
 use anyhow::{anyhow, bail, Result};
 use serde::{Deserialize, Serialize};
@@ -42,6 +44,11 @@ pub struct Measured {
     pub instructions_per_point_mac: f64,
     /// After pooling (FC layers and heads), instructions per MAC.
     pub instructions_per_vector_mac: f64,
+    /// Point layers on a core without the Cortex-M7's FPv5 requantization (`arm-fpv5`: M4,
+    /// M33), instructions per MAC: the same image built with `arm-dsp` alone.
+    pub instructions_per_point_mac_without_fpv5: f64,
+    /// After pooling on such a core, instructions per MAC.
+    pub instructions_per_vector_mac_without_fpv5: f64,
     /// Sampling, instructions per window whatever `N` (drawing from the window's `M` points,
     /// M ≈ 2,900): fitted, with the per-point figure, through two firmware runs on the same
     /// windows, 113,680 instructions at N = 256 (this model) and 209,360 at N = 2,048 (the
@@ -84,6 +91,12 @@ impl Core {
             Core::CortexM4 => 1.25,
             Core::CortexM33 => 1.2,
         }
+    }
+    /// Whether the core runs the FPv5 requantization of `kernels::arm` (feature `arm-fpv5`):
+    /// the M7 only. The M4's FPv4 lacks `VMAXNM`; the M33's single-precision FPv5 has it,
+    /// but Rust's inline assembly takes FPU registers only on double-precision FPUs.
+    pub fn fpv5_kernels(self) -> bool {
+        self == Core::CortexM7
     }
     /// The name `--target` takes.
     pub fn name(self) -> &'static str {
@@ -165,15 +178,22 @@ pub struct Latency {
 /// The cost of one window of `window_events` events through the model of `m` (at `m.points`
 /// points) on `target`, from the per-unit costs `k`.
 pub fn estimate(m: &ModelBudget, window_events: u64, k: &Measured, target: Target) -> Latency {
-    let per_point =
-        k.instructions_per_point_mac * m.macs_per_point as f64 + k.instructions_per_sampled_point;
+    let (point_mac, vector_mac) = if target.core.fpv5_kernels() {
+        (k.instructions_per_point_mac, k.instructions_per_vector_mac)
+    } else {
+        (
+            k.instructions_per_point_mac_without_fpv5,
+            k.instructions_per_vector_mac_without_fpv5,
+        )
+    };
+    let per_point = point_mac * m.macs_per_point as f64 + k.instructions_per_sampled_point;
     let bins = (m.joints * (m.width + m.height)) as f64;
     let input = k.instructions_per_input_event * window_events as f64;
     let rasterize = k.instructions_per_event * window_events as f64;
     let fixed = input
         + rasterize
         + k.sample_instructions_per_window
-        + k.instructions_per_vector_mac * m.macs_after_pooling as f64
+        + vector_mac * m.macs_after_pooling as f64
         + (k.instructions_per_bin + k.confidence_instructions_per_bin) * bins;
     let instructions = fixed + per_point * m.points as f64;
     let cycles_per_ms = target.mhz * 1e3 / target.core.cpi();
@@ -191,8 +211,8 @@ pub fn estimate(m: &ModelBudget, window_events: u64, k: &Measured, target: Targe
         rasterize,
         sample: k.sample_instructions_per_window
             + k.instructions_per_sampled_point * m.points as f64,
-        infer: k.instructions_per_point_mac * (m.macs_per_point * m.points) as f64
-            + k.instructions_per_vector_mac * m.macs_after_pooling as f64,
+        infer: point_mac * (m.macs_per_point * m.points) as f64
+            + vector_mac * m.macs_after_pooling as f64,
         decode: k.instructions_per_bin * bins,
         confidence: k.confidence_instructions_per_bin * bins,
         instructions,
@@ -234,6 +254,8 @@ mod tests {
             instructions_per_event: 10.0,
             instructions_per_point_mac: 2.0,
             instructions_per_vector_mac: 1.0,
+            instructions_per_point_mac_without_fpv5: 3.0,
+            instructions_per_vector_mac_without_fpv5: 2.0,
             sample_instructions_per_window: 50.0,
             instructions_per_sampled_point: 5.0,
             instructions_per_bin: 1.0,
@@ -259,8 +281,11 @@ mod tests {
         let sum = l.input + l.rasterize + l.sample + l.infer + l.decode + l.confidence;
         assert!((sum - want).abs() < 1e-6);
         assert!((l.ms - want / 480e3).abs() < 1e-9);
+        // The M4 runs the point layers and the layers after pooling without the FPv5
+        // requantization: their per-MAC costs without it.
         let m4 = estimate(&m, 7500, &k, "cortex-m4@240".parse().unwrap());
-        assert!((m4.ms - want * 1.25 / 240e3).abs() < 1e-9);
+        let want4 = want + (m.macs_per_point * 256) as f64 + m.macs_after_pooling as f64;
+        assert!((m4.ms - want4 * 1.25 / 240e3).abs() < 1e-9);
         // At the largest real-time count the window fits in 36 ms; one point more does not.
         let at = |n: u64| {
             let mut mb = m.clone();
