@@ -67,8 +67,9 @@ pub fn requantize(acc: i32, scale: f32, leaky: Option<f32>) -> i8 {
     // Same value as `round_clamp(v, -128.0, 127.0)`: clamp into the exact range, round,
     // saturate. `max`/`min` rather than `clamp`: the same for every number, one instruction
     // each where the FPU has them (VMAXNM/VMINNM on a Cortex-M7: the clamp's compares and
-    // selects cost 4 more instructions per output under QEMU), and a NaN (a blob's infinite
-    // scale times 0) saturates to -128 on every CPU instead of passing its bits on.
+    // selects cost 4 more instructions per output under QEMU), and a NaN (an infinite scale
+    // times 0) saturates to -128 instead of passing its bits on. (`Model::parse` refuses
+    // non-finite scales; the Cortex-M7 kernel, `kernels::arm::requantize_i8`, relies on it.)
     round_to_i32(v.max(-129.0).min(128.0)).clamp(-128, 127) as i8
 }
 

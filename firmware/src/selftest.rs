@@ -170,8 +170,8 @@ pub fn kernels(k: &Kernels) -> Report {
             }
         }
     }
-    // Requantization (VCVT, VMUL, VMAXNM, VCVTR, SSAT): every accumulator in ±2^13 at scales
-    // where ties occur, and random ones over the whole i32 range at random scales, each with
+    // Requantization (VCVT, VMUL, VMAXNM, VCVTN, SSAT): every accumulator in ±2^13 at eight
+    // scales, and random ones over the whole i32 range at random scales, each with
     // no LeakyReLU, PyTorch's slope, the max form's edges 0 and 1, and a slope it leaves to
     // the reference; lengths 1 to 4 and 37 (the four-output steps and their tails).
     let mut check_requant = |acc: &[i32], scales: &[f32]| {
@@ -186,7 +186,18 @@ pub fn kernels(k: &Kernels) -> Report {
             }
         }
     };
-    for scale in [0.5f32, 0.25, 0.003_137_254_9, 1.0] {
+    // Scales where ties occur, then zero, negative and huge ones (products of ±inf, and
+    // ±inf · 0 = NaN at slope 0, which VMAXNM must resolve to the number).
+    for scale in [
+        0.5f32,
+        0.25,
+        0.003_137_254_9,
+        1.0,
+        0.0,
+        -0.5,
+        f32::MAX,
+        -f32::MAX,
+    ] {
         let mut acc = [0i32; 64];
         let mut a = -(1 << 13);
         while a < (1 << 13) {

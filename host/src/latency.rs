@@ -14,10 +14,14 @@
 //! | Cortex-M4 | 1.25 | single-issue, 3-stage; loads take 2 cycles, one load per 2–3 instructions in the kernels |
 //! | Cortex-M33 | 1.2 | single-issue, 3-stage like the M4, with the DSP extension (assumed present) |
 //!
-//! The M4 and M33 run the same Thumb-2 + DSP instructions the M7 image uses, except the FPv5
-//! requantization (`VMAXNM`, `VCVTR`; feature `arm-fpv5`): their point layers and FC layers
-//! take the per-MAC costs of the same image built without it, measured beside the M7's.
-//! Caches and flash wait states are not modelled.
+//! The M4 and M33 run the same Thumb-2 + DSP instructions the M7 image uses, except the
+//! assembly requantization (`VMAXNM`, `VCVTN`; feature `arm-fpv5`): their point layers and FC
+//! layers take the per-MAC costs of the same image built without that feature, measured beside
+//! the M7's. That image is still compiled for the M7 (`-C target-cpu=cortex-m7`), so the
+//! portable requantization's float clamps are `VMAXNM`/`VMINNM` there and the rasterizer's f64
+//! arithmetic runs on the M7's double-precision FPU. An M4 has neither (compare-and-select
+//! pairs, about 4 more instructions per output; f64 in software): its figures are lower
+//! bounds. Caches and flash wait states are not modelled.
 
 use anyhow::{anyhow, bail, Result};
 use serde::{Deserialize, Serialize};
@@ -44,11 +48,11 @@ pub struct Measured {
     pub instructions_per_point_mac: f64,
     /// After pooling (FC layers and heads), instructions per MAC.
     pub instructions_per_vector_mac: f64,
-    /// Point layers on a core without the Cortex-M7's FPv5 requantization (`arm-fpv5`: M4,
-    /// M33), instructions per MAC: the same image built with `arm-dsp` alone.
-    pub instructions_per_point_mac_without_fpv5: f64,
+    /// Point layers on a core that cannot build the `arm-fpv5` requantization (M4, M33),
+    /// instructions per MAC: the same M7 image built with `arm-dsp` alone.
+    pub instructions_per_point_mac_without_arm_fpv5: f64,
     /// After pooling on such a core, instructions per MAC.
-    pub instructions_per_vector_mac_without_fpv5: f64,
+    pub instructions_per_vector_mac_without_arm_fpv5: f64,
     /// Sampling, instructions per window whatever `N` (drawing from the window's `M` points,
     /// M ≈ 2,900): fitted, with the per-point figure, through two firmware runs on the same
     /// windows, 113,680 instructions at N = 256 (this model) and 209,360 at N = 2,048 (the
@@ -92,9 +96,10 @@ impl Core {
             Core::CortexM33 => 1.2,
         }
     }
-    /// Whether the core runs the FPv5 requantization of `kernels::arm` (feature `arm-fpv5`):
-    /// the M7 only. The M4's FPv4 lacks `VMAXNM`; the M33's single-precision FPv5 has it,
-    /// but Rust's inline assembly takes FPU registers only on double-precision FPUs.
+    /// Whether the core runs the assembly requantization of `kernels::arm` (feature
+    /// `arm-fpv5`): the M7 only. The M4's FPv4 lacks `VMAXNM`; the M33's single-precision FPv5
+    /// has it, but Rust's inline assembly takes FPU register operands only where rustc
+    /// reports `vfp2` (a double-precision FPU).
     pub fn fpv5_kernels(self) -> bool {
         self == Core::CortexM7
     }
@@ -182,8 +187,8 @@ pub fn estimate(m: &ModelBudget, window_events: u64, k: &Measured, target: Targe
         (k.instructions_per_point_mac, k.instructions_per_vector_mac)
     } else {
         (
-            k.instructions_per_point_mac_without_fpv5,
-            k.instructions_per_vector_mac_without_fpv5,
+            k.instructions_per_point_mac_without_arm_fpv5,
+            k.instructions_per_vector_mac_without_arm_fpv5,
         )
     };
     let per_point = point_mac * m.macs_per_point as f64 + k.instructions_per_sampled_point;
@@ -254,8 +259,8 @@ mod tests {
             instructions_per_event: 10.0,
             instructions_per_point_mac: 2.0,
             instructions_per_vector_mac: 1.0,
-            instructions_per_point_mac_without_fpv5: 3.0,
-            instructions_per_vector_mac_without_fpv5: 2.0,
+            instructions_per_point_mac_without_arm_fpv5: 3.0,
+            instructions_per_vector_mac_without_arm_fpv5: 2.0,
             sample_instructions_per_window: 50.0,
             instructions_per_sampled_point: 5.0,
             instructions_per_bin: 1.0,

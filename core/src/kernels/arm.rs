@@ -10,6 +10,10 @@
 //!   convolution does two): the block's inputs are unpacked once, and each row runs over them
 //!   in one inline-assembly loop (`LDR`, two `SXTB16`, four `LDRD`, eight `SMLAD` per 16 MACs).
 //! - [`pool_i8`] takes the maxima of four channels at once with `SSUB8` and `SEL`.
+//! - [`matvec_i16`] runs `SMLAD` on the stored i16 weights and inputs (the 15-bit SimDR heads
+//!   and the first layer), two rows at a time, in [`matvec_i8`]'s loop.
+//! - [`requantize_i8`] (feature `arm-fpv5`, the Cortex-M7's double-precision FPv5 FPU) does
+//!   four outputs per pass with `VMAXNM` for the LeakyReLU and `VCVTN` for the rounding.
 //!
 //! The instructions are inline assembly on `target_arch = "arm"` with the `arm-dsp`
 //! cargo feature: stable Rust cannot see the DSP extension in `cfg(target_feature)`, and the
@@ -499,7 +503,7 @@ pub fn pool_i8(max: &mut [i8], sum: &mut [i32], y: &[i8]) {
 /// `arm-fpv5` feature (Cortex-M7's FPv5 FPU) in inline assembly, everywhere else emulated.
 ///
 /// Per output: `VCVT` to f32, `VMUL` by the scale, the LeakyReLU as `VMAXNM(v, α·v)`, then
-/// `VCVTR` (round to nearest, ties to even, saturating: the FPSCR's reset rounding mode) and
+/// `VCVTN` (round to nearest, ties to even, whatever the FPSCR's rounding mode; saturating) and
 /// `SSAT #8`: about 8.5 instructions against about 18 for the reference's compare, select,
 /// float clamps and magic-number rounding. The max form equals `v < 0 ? α·v : v` for slopes
 /// in `[0, 1]` (`α = 1` is no LeakyReLU); a layer with another slope takes the reference. It
@@ -539,7 +543,7 @@ fn requantize_fours(acc: &[[i32; 4]], scales: &[[f32; 4]], alpha: f32, out: &mut
         // `n` steps of 4 bytes to `out` (`n` is the shortest length; `VLDMIA` needs the 4-byte
         // alignment that `i32` and `f32` give, `STRB` none), stopping when the accumulator
         // pointer reaches `end`; it writes only the named registers and `out`. `VMAXNM` and
-        // `VCVTR` exist on an FPv5 FPU, which the `arm-fpv5` feature promises (the `sreg`
+        // `VCVTN` exist on an FPv5 FPU, which the `arm-fpv5` feature promises (the `sreg`
         // operand needs the double-precision FPU's `vfp2` feature: without it the build fails).
         unsafe {
             core::arch::asm!(
@@ -562,10 +566,10 @@ fn requantize_fours(acc: &[[i32; 4]], scales: &[[f32; 4]], alpha: f32, out: &mut
                 "vmaxnm.f32 s1, s1, s5",
                 "vmaxnm.f32 s2, s2, s6",
                 "vmaxnm.f32 s3, s3, s7",
-                "vcvtr.s32.f32 s0, s0",
-                "vcvtr.s32.f32 s1, s1",
-                "vcvtr.s32.f32 s2, s2",
-                "vcvtr.s32.f32 s3, s3",
+                "vcvtn.s32.f32 s0, s0",
+                "vcvtn.s32.f32 s1, s1",
+                "vcvtn.s32.f32 s2, s2",
+                "vcvtn.s32.f32 s3, s3",
                 "vmov {r0}, {r1}, s0, s1",
                 "vmov {r2}, {r3}, s2, s3",
                 "ssat {r0}, #8, {r0}",
@@ -603,7 +607,7 @@ fn requantize_fours(acc: &[[i32; 4]], scales: &[[f32; 4]], alpha: f32, out: &mut
     for ((a, s), o) in acc.iter().zip(scales).zip(out.iter_mut()).take(n) {
         for ((o, &a), &s) in o.iter_mut().zip(a).zip(s) {
             let v = a as f32 * s;
-            // VMAXNM returns the number when one operand is NaN, as `f32::max` does; VCVTR
+            // VMAXNM returns the number when one operand is NaN, as `f32::max` does; VCVTN
             // rounds to nearest even and saturates, NaN giving 0, as `rintf` and `as` do.
             let v = v.max(v * alpha);
             *o = (libm::rintf(v) as i32).clamp(-128, 127) as i8;

@@ -131,15 +131,15 @@ fn print_latency(list: &[Latency], k: &Measured, events: u64, points: u64) {
     println!(
         "\nlatency per {events}-event window at {points} points, from instructions measured \
          under QEMU (commit {}, model {}: {:.1}/event, {:.3}/point-layer MAC, {:.3}/MAC after \
-         pooling; without the M7's FPv5 requantization {:.3} and {:.3}); cycles = \
+         pooling; without the `arm-fpv5` requantization, for the M4 and M33, {:.3} and {:.3}); cycles = \
          instructions x CPI (assumed):",
         k.commit,
         k.model,
         k.instructions_per_event,
         k.instructions_per_point_mac,
         k.instructions_per_vector_mac,
-        k.instructions_per_point_mac_without_fpv5,
-        k.instructions_per_vector_mac_without_fpv5
+        k.instructions_per_point_mac_without_arm_fpv5,
+        k.instructions_per_vector_mac_without_arm_fpv5
     );
     println!(
         "{:<18} {:>4} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7}  {:>8}  verdict ({REAL_TIME_MS} ms)   max points",
