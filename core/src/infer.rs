@@ -636,8 +636,11 @@ impl<'m> Plan<'m> {
                 // 15-bit weights (blob version 3): the int8 features widened to i16 (the
                 // parser bounds D by MAX_I16_HEAD_DIM, so the sums are exact in i32).
                 Weights::I16(w) => {
-                    let mut wide = [0i16; quant::MAX_I16_HEAD_DIM];
-                    let wide = &mut wide[..f.len().min(quant::MAX_I16_HEAD_DIM)];
+                    // Word-aligned, so that the Cortex-M kernel can load it with `LDRD`.
+                    #[repr(align(4))]
+                    struct Wide([i16; quant::MAX_I16_HEAD_DIM]);
+                    let mut wide = Wide([0; quant::MAX_I16_HEAD_DIM]);
+                    let wide = &mut wide.0[..f.len().min(quant::MAX_I16_HEAD_DIM)];
                     for (d, &v) in wide.iter_mut().zip(f) {
                         *d = i16::from(v);
                     }

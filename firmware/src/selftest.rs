@@ -17,6 +17,10 @@ const MM_K: [usize; 8] = [1, 4, 7, 16, 127, 128, 131, 260];
 /// The widest of them.
 const MM_MAX_K: usize = 260;
 
+/// An array on a 4-byte boundary.
+#[repr(align(4))]
+struct Words<T>(T);
+
 /// What the self-test found.
 pub struct Report {
     /// matvec (i8 and i16), matmat, pooling and requantization calls compared.
@@ -149,8 +153,10 @@ pub fn kernels(k: &Kernels) -> Report {
     // (sums that wrap modulo 2^32; the release build's reference wraps too).
     for kk in 1..=MAX_K {
         for rows in 1..=MAX_ROWS {
-            let mut w = [0i16; MAX_K * MAX_ROWS];
-            let mut x = [0i16; MAX_K];
+            // Word-aligned, so that `K` a multiple of four takes the LDRD loop (the heads'
+            // case) and every other `K` the Rust one.
+            let (mut wa, mut xa) = (Words([0i16; MAX_K * MAX_ROWS]), Words([0i16; MAX_K]));
+            let (w, x) = (&mut wa.0, &mut xa.0);
             let mut bias = [0i32; MAX_ROWS];
             let half = |rng: &mut Rng| match rng.next() % 8 {
                 0 => i16::MIN,
