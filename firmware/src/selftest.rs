@@ -176,6 +176,24 @@ pub fn kernels(k: &Kernels) -> Report {
             }
         }
     }
+    // Lengths that disagree (more weight rows than biases, fewer outputs, and the reverse):
+    // the kernels compute the rows the reference visits, in the LDRD loop and in Rust.
+    for kk in [8, 32, 6] {
+        for (w_rows, b_len, o_len) in [(5, 4, 3), (4, 5, 4), (3, 3, 2), (6, 2, 5)] {
+            let (mut wa, mut xa) = (Words([0i16; 32 * 6]), Words([0i16; 32]));
+            wa.0.iter_mut().for_each(|v| *v = rng.next() as i16);
+            xa.0.iter_mut().for_each(|v| *v = rng.next() as i16);
+            let bias = [rng.next() as i32; 6];
+            let (w, x, bias) = (&wa.0[..w_rows * kk], &xa.0[..kk], &bias[..b_len]);
+            let (mut got, mut want) = ([0x5A5A_5A5Ai32; 6], [0x5A5A_5A5Ai32; 6]);
+            k.matvec_i16(w, x, bias, &mut got[..o_len]);
+            reference.matvec_i16(w, x, bias, &mut want[..o_len]);
+            report.cases += 1;
+            if got != want {
+                report.mismatches += 1;
+            }
+        }
+    }
     // Requantization (VCVT, VMUL, VMAXNM, VCVTN, SSAT): every accumulator in ±2^13 at eight
     // scales, and random ones over the whole i32 range at random scales, each with
     // no LeakyReLU, PyTorch's slope, the max form's edges 0 and 1, and a slope it leaves to

@@ -11,7 +11,8 @@
 //!   in one inline-assembly loop (`LDR`, two `SXTB16`, four `LDRD`, eight `SMLAD` per 16 MACs).
 //! - [`pool_i8`] takes the maxima of four channels at once with `SSUB8` and `SEL`.
 //! - [`matvec_i16`] runs `SMLAD` on the stored i16 weights and inputs (the 15-bit SimDR heads
-//!   and the first layer), two rows at a time, in [`matvec_i8`]'s loop.
+//!   and the first layer), two rows at a time: an inline-assembly `LDRD` loop for word-aligned
+//!   operands with `K` a multiple of four (the heads), else [`matvec_i8`]'s loop in Rust.
 //! - [`requantize_i8`] (feature `arm-fpv5`, the Cortex-M7's double-precision FPv5 FPU) does
 //!   four outputs per pass with `VMAXNM` for the LeakyReLU and `VCVTN` for the rounding.
 //!
@@ -226,14 +227,21 @@ fn halves([lo, hi]: [i16; 2]) -> u32 {
 /// 16 instructions per 16 MACs, unrolled twice. Anything else takes the Rust loop.
 pub fn matvec_i16(w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]) {
     #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
-    {
-        let aligned = |p: *const i16| (p as usize).is_multiple_of(4);
-        let k = x.len();
-        if k > 0 && k.is_multiple_of(4) && aligned(x.as_ptr()) && aligned(w.as_ptr()) {
-            return matvec_i16_aligned(w, x, bias, out);
-        }
+    if ldrd_shape(w, x) {
+        // SAFETY: `ldrd_shape` is the function's contract.
+        return unsafe { matvec_i16_aligned(w, x, bias, out) };
     }
     matvec_i16_rows(w, x, bias, out);
+}
+
+/// Whether [`matvec_i16`] may take the `LDRD` loop: `K` a positive multiple of four, `x` and
+/// `w` on 4-byte boundaries.
+#[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
+#[inline(always)]
+fn ldrd_shape(w: &[i16], x: &[i16]) -> bool {
+    let aligned = |p: *const i16| (p as usize).is_multiple_of(4);
+    let k = x.len();
+    k > 0 && k.is_multiple_of(4) && aligned(x.as_ptr()) && aligned(w.as_ptr())
 }
 
 /// [`matvec_i16`]'s loop in Rust, for any shape and alignment.
@@ -251,17 +259,26 @@ fn matvec_i16_rows(w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]) {
     );
 }
 
-/// [`matvec_i16`] with the `LDRD` loop: `K = x.len()` a positive multiple of four, `x` and
-/// `w` starting on 4-byte boundaries (the caller checks).
+/// [`matvec_i16`] with the `LDRD` loop.
+///
+/// # Safety
+///
+/// [`ldrd_shape`] must hold: `K = x.len()` a positive multiple of four, `x` and `w` on 4-byte
+/// boundaries (the assembly reads `K / 4` steps of 8 bytes from each row with `LDRD`). Checking
+/// it again here cost the heads about 160 instructions per call under QEMU (spills around the
+/// fallback), so the caller checks it once.
 #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
 #[inline(never)]
-fn matvec_i16_aligned(w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]) {
+unsafe fn matvec_i16_aligned(w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]) {
     let k = x.len();
+    let Some(k2) = k.checked_mul(2).filter(|&v| v > 0) else {
+        return; // `K ≥ 4` by the contract
+    };
     let n = rows(k, w.len(), bias.len(), out.len());
     let (Some(w), Some(bias), Some(out)) = (w.get(..n * k), bias.get(..n), out.get_mut(..n)) else {
         return; // `n` is within every length (`rows`)
     };
-    let pairs = w.chunks_exact(2 * k).zip(bias.as_chunks::<2>().0);
+    let pairs = w.chunks_exact(k2).zip(bias.as_chunks::<2>().0);
     for ((ws, b), y) in pairs.zip(out.as_chunks_mut::<2>().0) {
         let Some((w0, w1)) = ws.split_at_checked(k) else {
             return; // `ws` is `2K` long
@@ -283,9 +300,10 @@ fn matvec_i16_aligned(w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]) {
             };
         }
         // SAFETY: the loop reads `K / 4` steps of 8 bytes from each of `x`, `w0` and `w1`
-        // (each `K` i16 long, `K` a positive multiple of four), all at 4-byte-aligned addresses (checked above; `w1`
-        // starts `2K` bytes, a multiple of 8, after `w0`), as `LDRD` needs, and stops when the
-        // input pointer reaches `end`; it writes only registers. SMLAD exists on cores with the
+        // (each `K` i16 long, `K` a positive multiple of four: the function's contract), all
+        // at 4-byte-aligned addresses (the contract; `w1` starts `2K` bytes, a multiple of 8,
+        // after `w0`), as `LDRD` needs, and stops when the input pointer reaches `end`; it
+        // writes only registers. SMLAD exists on cores with the
         // DSP extension, which the `arm-dsp` feature promises (see `sxtb16`).
         unsafe {
             core::arch::asm!(
