@@ -1182,7 +1182,7 @@ proptest! {
             kern.requantize_i8(&acc, &scales, leaky, &mut got);
             prop_assert_eq!(&got, &want, "{}", kern.name());
         }
-        // The Cortex-M7 kernel's arithmetic (VMAXNM, VCVTR), emulated here.
+        // The Cortex-M7 kernel's arithmetic (VMAXNM, VCVTN), emulated here.
         let mut got = vec![7i8; want.len()];
         kernels::arm::requantize_i8(&acc, &scales, leaky, &mut got);
         prop_assert_eq!(&got, &want, "arm::requantize_i8 (emulated)");
@@ -1259,7 +1259,7 @@ fn cpuid_detection_matches_std() {
     }
 }
 
-/// The Cortex-M7 requantization (emulated here; the real `VMAXNM`/`VCVTR` run in the
+/// The Cortex-M7 requantization (emulated here; the real `VMAXNM`/`VCVTN` run in the
 /// firmware's self-test) on every accumulator in ±2^17 and the i32 extremes, at scales where
 /// ties (x.5) occur, for every slope form it takes: none, PyTorch's 0.01, the edges 0 and 1,
 /// and a slope it leaves to the reference. Lengths not a multiple of four reach its tail.

@@ -303,8 +303,8 @@ unsafe fn matvec_i16_aligned(w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]
         // (each `K` i16 long, `K` a positive multiple of four: the function's contract), all
         // at 4-byte-aligned addresses (the contract; `w1` starts `2K` bytes, a multiple of 8,
         // after `w0`), as `LDRD` needs, and stops when the input pointer reaches `end`; it
-        // writes only registers. SMLAD exists on cores with the
-        // DSP extension, which the `arm-dsp` feature promises (see `sxtb16`).
+        // writes only registers. SMLAD exists on cores with the DSP extension, which the
+        // `arm-dsp` feature promises (see `sxtb16`).
         unsafe {
             core::arch::asm!(
                 // Two steps per pass; an odd count (`end − px = 8·steps` bytes) enters at the
