@@ -17,7 +17,7 @@
 //! | kernels | [`kernels`] | matrix kernels (row-major and packed weights), requantization, pooling: scalar reference and optimized versions |
 //! | decoding | [`simdr`] | SimDR labels and argmax decoding to 2-D joints |
 //! | confidence | [`confidence`] | per-joint confidence: softmax mass near each argmax |
-//! | temporal filter | [`smooth`] | confidence-gated One-Euro filter of joints over windows |
+//! | temporal filter | [`smooth`] | joints over windows: confidence-gated One-Euro (causal) or a confidence-weighted fixed-lag mean |
 //! | per window | [`pipeline`] | one window of events in, one estimate out: the loop every pipeline runs |
 //! | skeleton | [`skeleton`] | DHP19's 13 joints: order, names, lines |
 //! | triangulation | `geometry` | projection and two-view triangulation of joints to 3-D (feature `geometry`) |

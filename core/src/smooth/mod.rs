@@ -1,5 +1,10 @@
-//! Temporal filtering of 2-D joints over windows: a One-Euro filter (Casiez, Roussel and Vogel,
-//! CHI 2012) per joint coordinate, gated by the joint's confidence.
+//! Temporal filtering of 2-D joints over windows, two ways:
+//! - [`Smoother`]: causal (no latency), a One-Euro filter (Casiez, Roussel and Vogel, CHI 2012)
+//!   per joint coordinate, gated by the joint's confidence;
+//! - [`FixedLag`]: a fixed-lag smoother, each window the confidence-weighted mean of its
+//!   neighbours `lag` windows either side, out `lag` windows late (the [`lag`] module).
+//!
+//! The One-Euro filter:
 //!
 //! Per coordinate, with `dt` the time between the two windows' last events:
 //! `α(f) = 1 / (1 + 1 / (2π f dt))`; the derivative is low-passed at `d_cutoff_hz`, and the
@@ -13,6 +18,40 @@
 //! `f32` with `libm`, the same bits on the host and an MCU.
 
 use crate::simdr::Joint2d;
+
+pub mod lag;
+pub use lag::{FixedLag, Held, LagError, LagParams, LagSlot};
+
+/// A temporal filter and its parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Filter {
+    /// None: the network's joints as they are.
+    Off,
+    /// The causal confidence-gated One-Euro filter ([`Smoother`]): no latency.
+    OneEuro(SmoothParams),
+    /// The fixed-lag confidence-weighted mean ([`FixedLag`]): `lag` windows late, more
+    /// accurate.
+    FixedLag(LagParams),
+}
+
+impl Filter {
+    /// The default: the fixed-lag mean, three windows each side.
+    pub const DEFAULT: Self = Self::FixedLag(LagParams::DEFAULT);
+
+    /// Windows a result comes out after its own (0 for the causal filters).
+    pub fn latency_windows(&self) -> usize {
+        match self {
+            Self::FixedLag(p) => p.lag,
+            Self::Off | Self::OneEuro(_) => 0,
+        }
+    }
+}
+
+impl Default for Filter {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
 
 /// Filter parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]
