@@ -101,30 +101,44 @@ pub fn smooth(
     Ok(out)
 }
 
-/// Windows on each side of each window in the non-causal reference ([`centred_mean`]).
-pub const CENTRED_REFERENCE_HALF: usize = 3;
-
-/// A non-causal reference for the temporal filter: each prediction replaced by the mean of
-/// the predictions `half` windows before and after it in its recording (fewer at the ends).
-/// It sees future windows, which no real-time filter can, so what it gains is roughly what
-/// averaging a few neighbouring windows gains: the part of the error that consecutive windows
-/// share (a still limb guessed the same way window after window) it cannot remove. Neighbours
-/// are taken by window index within one recording and camera.
-pub fn centred_mean(ds: &Dataset, predictions: &[Joints2d], half: usize) -> Result<Vec<Joints2d>> {
+/// The predictions after the fixed-lag filter ([`evpose_core::smooth::FixedLag`]: each window
+/// the confidence-weighted mean of `params.lag` windows either side), run over each recording's
+/// windows in order, camera by camera, with each window's last event time as its time.
+pub fn smooth_fixed_lag(
+    ds: &Dataset,
+    predictions: &[Prediction],
+    params: evpose_core::smooth::LagParams,
+) -> Result<Vec<Joints2d>> {
+    use evpose_core::smooth::{FixedLag, Held, LagSlot};
     if predictions.len() != ds.len() {
         bail!("{} predictions for {} samples", predictions.len(), ds.len());
     }
-    let mut out = predictions.to_vec();
+    let mut out: Vec<Joints2d> = predictions.iter().map(|p| p.joints).collect();
+    let mut slots = vec![LagSlot::default(); FixedLag::slots_for(params.lag)];
+    let mut held = vec![Held::default(); slots.len() * JOINTS];
+    let lag_err = |e: evpose_core::smooth::LagError| anyhow::anyhow!("{e}");
     for rows in sequences(ds) {
-        for (n, &i) in rows.iter().enumerate() {
-            let near = &rows[n.saturating_sub(half)..(n + half + 1).min(rows.len())];
-            for j in 0..JOINTS {
-                for a in 0..2 {
-                    let sum: f32 = near.iter().map(|&m| predictions[m][j][a]).sum();
-                    out[i][j][a] = sum / near.len() as f32;
-                }
+        let mut f =
+            FixedLag::with_params(params, JOINTS, &mut slots, &mut held).map_err(lag_err)?;
+        // Window numbers count this sequence's pushes from 0: positions in `rows`.
+        let pop = |f: &mut FixedLag<'_>, out: &mut [Joints2d]| {
+            let mut buf = [[0f32; 2]; JOINTS];
+            while let Some(k) = f.pop(&mut buf) {
+                out[rows[k as usize]] = buf;
             }
+        };
+        for &i in &rows {
+            let p = &predictions[i];
+            let joints = p.joints.map(|[x, y]| evpose_core::Joint2d {
+                x: x as u16,
+                y: y as u16,
+            });
+            f.push(ds.span_us[i][1], &joints, &p.confidence)
+                .map_err(lag_err)?;
+            pop(&mut f, &mut out);
         }
+        f.finish();
+        pop(&mut f, &mut out);
     }
     Ok(out)
 }
@@ -194,9 +208,10 @@ pub struct EvalReport {
     /// The same figures after the temporal filter (`evpose eval --smooth`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub smoothed: Option<Box<EvalReport>>,
-    /// The same figures for the non-causal reference ([`centred_mean`], with `--smooth`).
+    /// The same figures after the fixed-lag filter (`evpose eval --smooth`,
+    /// [`smooth_fixed_lag`]).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub centred_reference: Option<Box<EvalReport>>,
+    pub fixed_lag: Option<Box<EvalReport>>,
 }
 
 /// Euclidean 2-D error of each visible joint.
@@ -331,7 +346,7 @@ pub fn evaluate(
         samples_per_second,
         mean_confidence: None,
         smoothed: None,
-        centred_reference: None,
+        fixed_lag: None,
     })
 }
 

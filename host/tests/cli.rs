@@ -418,6 +418,36 @@ fn run_on_the_bundled_clip_follows_its_ground_truth() {
     let windows: Vec<serde_json::Value> =
         serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     assert_eq!(windows.len(), 12, "368,884 events in 30,000-event windows");
+    // The default filter is the fixed-lag mean (lag 3): every window once, in order, and each
+    // camera's joints the c²-weighted mean of the network's joints (`raw_joints`) of up to 3
+    // windows either side, recomputed here in f64 (the core sums in f32: 1e-3 px).
+    let raw_of = |w: usize, c: usize, j: usize, a: usize| {
+        windows[w]["cameras"][c]["raw_joints"][j][a]
+            .as_f64()
+            .unwrap()
+    };
+    for (k, w) in windows.iter().enumerate() {
+        assert_eq!(w["window"], k);
+        for c in 0..2 {
+            for j in 0..13 {
+                for a in 0..2 {
+                    let (mut sum, mut weights) = (0f64, 0f64);
+                    for m in k.saturating_sub(3)..(k + 4).min(windows.len()) {
+                        let conf = windows[m]["cameras"][c]["confidence"][j].as_f64().unwrap();
+                        let weight = f64::from((conf * conf) as f32 + 1e-6);
+                        sum += weight * raw_of(m, c, j, a);
+                        weights += weight;
+                    }
+                    let got = w["cameras"][c]["joints"][j][a].as_f64().unwrap();
+                    assert!(
+                        (got - sum / weights).abs() < 1e-3,
+                        "window {k} camera {c} joint {j}: {got} vs {}",
+                        sum / weights
+                    );
+                }
+            }
+        }
+    }
     // The clip's ground truth, read here with numpy's format alone: (200, 13, 3) mm at 100 Hz.
     let gt_path =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/clip/S4242-00_side-kick.gt.npy");
@@ -430,6 +460,16 @@ fn run_on_the_bundled_clip_follows_its_ground_truth() {
     // the JSON's joints and 3-D joints are those.
     let raw_out = tmp("clip-raw.json");
     evpose(&["run", "--smooth", "off", "--out", s(&raw_out)]);
+    // The causal One-Euro filter: the first window passes as it is, later ones are filtered.
+    let euro_out = tmp("clip-euro.json");
+    evpose(&["run", "--smooth", "one-euro", "--out", s(&euro_out)]);
+    let euro: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(&euro_out).unwrap()).unwrap();
+    assert_eq!(euro.len(), 12);
+    assert_eq!(euro[0]["cameras"][0]["joints"], euro[0]["cameras"][0]["raw_joints"]);
+    assert!(euro[1..]
+        .iter()
+        .any(|w| w["cameras"][0]["joints"] != w["cameras"][0]["raw_joints"]));
     let raw: Vec<serde_json::Value> =
         serde_json::from_str(&std::fs::read_to_string(&raw_out).unwrap()).unwrap();
     for (w, f) in raw.iter().zip(&windows) {

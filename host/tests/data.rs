@@ -272,25 +272,50 @@ fn smoothing_reduces_jitter_and_ignores_unconfident_outliers() {
     );
 }
 
-/// The non-causal reference averages each camera's own windows, centred, fewer at the ends.
+/// The fixed-lag filter averages each camera's own windows, centred, fewer at the ends, and
+/// weighs joints by confidence.
 #[test]
-fn centred_reference_averages_each_cameras_neighbours() {
+fn fixed_lag_filter_averages_each_cameras_neighbours() {
+    use evpose_core::smooth::LagParams;
     let n = 10; // five windows of cameras 2 and 3
     let ds = tiny_dataset(vec![[[0.0, 0.0]; JOINTS]; n], vec![[1; JOINTS]; n]);
     // Camera 2 (even rows) at x = window; camera 3 (odd rows) at x = 100 + 10 · window.
-    let preds: Vec<eval::Joints2d> = (0..n)
+    let preds: Vec<eval::Prediction> = (0..n)
         .map(|i| {
             let w = (i / 2) as f32;
-            [[if i % 2 == 0 { w } else { 100.0 + 10.0 * w }, 7.0]; JOINTS]
+            eval::Prediction {
+                joints: [[if i % 2 == 0 { w } else { 100.0 + 10.0 * w }, 7.0]; JOINTS],
+                confidence: [0.5; JOINTS],
+            }
         })
         .collect();
-    let c = eval::centred_mean(&ds, &preds, 1).unwrap();
+    let lag1 = LagParams {
+        lag: 1,
+        ..LagParams::DEFAULT
+    };
+    let c = eval::smooth_fixed_lag(&ds, &preds, lag1).unwrap();
     let x = |i: usize| c[i][0][0];
-    // Window 0: windows 0 and 1; window 2: 1, 2, 3; window 4: 3 and 4.
-    assert_eq!([x(0), x(4), x(8)], [0.5, 2.0, 3.5]);
-    assert_eq!([x(1), x(5), x(9)], [105.0, 120.0, 135.0]);
-    assert!(c.iter().all(|p| p.iter().all(|j| j[1] == 7.0)));
-    assert!(eval::centred_mean(&ds, &preds[1..], 1).is_err());
+    // Window 0: windows 0 and 1; window 2: 1, 2, 3; window 4: 3 and 4 (equal weights).
+    let close = |a: [f32; 3], b: [f32; 3]| a.iter().zip(b).all(|(a, b)| (a - b).abs() < 1e-4);
+    assert!(close([x(0), x(4), x(8)], [0.5, 2.0, 3.5]), "{c:?}");
+    assert!(close([x(1), x(5), x(9)], [105.0, 120.0, 135.0]), "{c:?}");
+    assert!(c
+        .iter()
+        .all(|p| p.iter().all(|j| (j[1] - 7.0).abs() < 1e-4)));
+    assert!(eval::smooth_fixed_lag(&ds, &preds[1..], lag1).is_err());
+    // An unsure window 500 px off moves its neighbours by well under a pixel (weights c²:
+    // 0.0004 against 0.25); a plain mean would move them by 166 px. Without it window 1 is
+    // the mean of windows 0 and 1 (0.5), window 3 of 3 and 4 (3.5).
+    let mut outlier = preds.clone();
+    outlier[4].joints[0][0] = 500.0;
+    outlier[4].confidence[0] = 0.02;
+    let o = eval::smooth_fixed_lag(&ds, &outlier, lag1).unwrap();
+    assert!(
+        (o[2][0][0] - 0.5).abs() < 0.5 && (o[6][0][0] - 3.5).abs() < 0.5,
+        "{:?} {:?}",
+        o[2][0],
+        o[6][0]
+    );
 }
 
 #[test]

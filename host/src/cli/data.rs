@@ -11,7 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use crate::dataset::{self, Dataset, DatasetOptions, LabelRule, SplitFilter};
 use crate::eval::{self, EvalReport};
 use crate::{dhp19, model};
-use evpose_core::smooth::SmoothParams;
+use evpose_core::smooth::{LagParams, SmoothParams};
 
 /// Arguments of `evpose dataset` (stable: scripts call them).
 #[derive(Args, Debug)]
@@ -132,8 +132,8 @@ pub struct EvalArgs {
     /// Write a PNG bar chart of the error per joint (2-D px and 3-D mm).
     #[arg(long)]
     pub plot: Option<PathBuf>,
-    /// Also measure the predictions after the confidence-gated temporal filter
-    /// (`evpose_core::smooth`), run over each recording's windows in order.
+    /// Also measure the predictions after the temporal filters (`evpose_core::smooth`: the
+    /// causal One-Euro and the fixed-lag mean), run over each recording's windows in order.
     #[arg(long)]
     pub smooth: bool,
     /// Filter cut-off at rest, Hz (with --smooth).
@@ -145,6 +145,9 @@ pub struct EvalArgs {
     /// Confidence at which a joint takes the filter's full step (with --smooth).
     #[arg(long, default_value_t = SmoothParams::DEFAULT.full_confidence)]
     pub full_confidence: f32,
+    /// Windows each side of the fixed-lag filter (with --smooth).
+    #[arg(long, default_value_t = LagParams::DEFAULT.lag)]
+    pub lag: usize,
 }
 
 impl EvalArgs {
@@ -241,21 +244,25 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         let smoothed = eval::smooth(&ds, &predictions, a.smooth_params())?;
         let p = a.smooth_params();
         let name = format!(
-            "{predictor}, smoothed (min cut-off {} Hz, beta {}, full confidence {})",
+            "{predictor}, causal One-Euro filter (min cut-off {} Hz, beta {}, full confidence {})",
             p.min_cutoff_hz, p.beta, p.full_confidence
         );
         report.smoothed = Some(Box::new(eval::evaluate(
             &ds, &smoothed, weights, front, name, rate,
         )?));
-        let half = eval::CENTRED_REFERENCE_HALF;
-        let centred = eval::centred_mean(&ds, &joints, half)?;
+        let lag = LagParams {
+            lag: a.lag,
+            ..LagParams::DEFAULT
+        };
+        let lagged = eval::smooth_fixed_lag(&ds, &predictions, lag)?;
         let name = format!(
-            "{predictor}, non-causal reference: mean over the {} windows centred on each \
-             (sees the future; not a real-time filter)",
-            2 * half + 1
+            "{predictor}, fixed-lag filter (confidence-weighted mean of {} windows, {} windows' \
+             latency)",
+            2 * lag.lag + 1,
+            lag.lag
         );
-        report.centred_reference = Some(Box::new(eval::evaluate(
-            &ds, &centred, weights, front, name, rate,
+        report.fixed_lag = Some(Box::new(eval::evaluate(
+            &ds, &lagged, weights, front, name, rate,
         )?));
     }
     if let Some(path) = &a.json {
@@ -338,7 +345,7 @@ fn print_report(r: &EvalReport) {
         (Some(a), Some(b)) if a > 0.0 => format!(" ({:+.1} %)", 100.0 * (b - a) / a),
         _ => String::new(),
     };
-    for s in [&r.smoothed, &r.centred_reference].into_iter().flatten() {
+    for s in [&r.smoothed, &r.fixed_lag].into_iter().flatten() {
         println!("\n{}", s.predictor);
         println!(
             "MPJPE2D {} px{}; MPJPE3D {} mm{}; confidence-weighted {} mm{}",

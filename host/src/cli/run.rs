@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
-use evpose_core::smooth::SmoothParams;
+use evpose_core::smooth::{Filter, LagParams, SmoothParams};
 
 use crate::render::RunRenderer;
 use crate::run::output::PoseWriter;
@@ -13,12 +13,16 @@ use crate::run::{
     RunSummary, RunWindow, NO_BODY_CONFIDENCE, NO_BODY_VIEWS_BASE, NO_BODY_VIEWS_SLOPE,
 };
 
-/// On or off.
+/// The temporal filter of `evpose run`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum Switch {
-    /// On.
-    On,
-    /// Off.
+pub enum Smooth {
+    /// A fixed-lag confidence-weighted mean over `--lag` windows each side: each window comes
+    /// out `--lag` windows late, the most accurate (README, "Temporal filter").
+    #[value(alias = "on")]
+    FixedLag,
+    /// A causal confidence-gated One-Euro filter: no latency, about half the gain.
+    OneEuro,
+    /// The network's joints as they are.
     Off,
 }
 
@@ -54,7 +58,7 @@ impl SourceArgs {
             model: self.model.clone(),
             engine: self.engine,
             cameras: self.cameras.clone(),
-            smooth: Some(SmoothParams::DEFAULT),
+            filter: Filter::DEFAULT,
             capacity: DEFAULT_TIME_WINDOW_CAPACITY,
             ..Request::default()
         }
@@ -87,9 +91,12 @@ pub struct RunArgs {
     /// Seed of the point samplers.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// The confidence-gated temporal filter over windows.
-    #[arg(long, value_enum, default_value_t = Switch::On)]
-    pub smooth: Switch,
+    /// The temporal filter over windows, weighted by the joints' confidences.
+    #[arg(long, value_enum, default_value_t = Smooth::FixedLag)]
+    pub smooth: Smooth,
+    /// Windows each side of the fixed-lag filter (its latency in windows).
+    #[arg(long, default_value_t = LagParams::DEFAULT.lag)]
+    pub lag: usize,
     /// Ground truth (`.gt.npy` of `evpose sim`, or DHP19's `.mat`; default: the one beside
     /// the recording, if any).
     #[arg(long)]
@@ -130,7 +137,14 @@ pub fn run(a: &RunArgs) -> Result<()> {
         stride: a.stride,
         points: a.points,
         seed: a.seed,
-        smooth: (a.smooth == Switch::On).then_some(SmoothParams::DEFAULT),
+        filter: match a.smooth {
+            Smooth::FixedLag => Filter::FixedLag(LagParams {
+                lag: a.lag,
+                ..LagParams::DEFAULT
+            }),
+            Smooth::OneEuro => Filter::OneEuro(SmoothParams::DEFAULT),
+            Smooth::Off => Filter::Off,
+        },
         gt: a.gt.clone(),
         calibration: a.calibration.clone(),
         capacity: a.max_window_events,
@@ -141,7 +155,7 @@ pub fn run(a: &RunArgs) -> Result<()> {
     let d = plan.description.clone();
     if !a.json {
         eprintln!(
-            "{}\n  model {} ({:?} engine, {} points), windows of {}{}",
+            "{}\n  model {} ({:?} engine, {} points), windows of {}{}\n  temporal filter: {}",
             d.events,
             d.model,
             d.engine,
@@ -149,7 +163,8 @@ pub fn run(a: &RunArgs) -> Result<()> {
             d.window,
             d.truth
                 .as_ref()
-                .map_or(String::new(), |t| format!(", ground truth {t}"))
+                .map_or(String::new(), |t| format!(", ground truth {t}")),
+            d.filter
         );
     }
     let mut writers = a

@@ -96,6 +96,9 @@ impl Rescale {
 pub trait CameraEstimator {
     /// Estimates one window from the camera's events (model pixels).
     fn estimate(&mut self, events: &[Event]) -> Result<Raw>;
+
+    /// Joints each estimate gives.
+    fn joints(&self) -> usize;
 }
 
 /// Time slices of the rasterization (the paper's K), per the model when it records them.
@@ -136,6 +139,10 @@ impl<E: Engine> CameraEstimator for CoreCamera<'_, E> {
                 scales,
             )),
         }
+    }
+
+    fn joints(&self) -> usize {
+        self.buffers.joints.len()
     }
 }
 
@@ -184,6 +191,7 @@ pub struct TractCamera {
     capacity: usize,
     indices: Vec<u32>,
     rows: Vec<[f32; 5]>,
+    joints: usize,
 }
 
 #[cfg(feature = "onnx")]
@@ -218,6 +226,7 @@ impl TractCamera {
                 capacity,
                 indices: vec![0; points.max(capacity)],
                 rows: vec![[0.0; 5]; points.max(capacity).max(1)],
+                joints: probe.joints,
             },
             size,
         ))
@@ -241,6 +250,7 @@ impl TractCamera {
             capacity: self.capacity,
             indices: vec![0; self.indices.len()],
             rows: vec![[0.0; 5]; self.rows.len()],
+            joints: self.joints,
         })
     }
 }
@@ -273,6 +283,10 @@ impl CameraEstimator for TractCamera {
             joints,
             confidence,
         })
+    }
+
+    fn joints(&self) -> usize {
+        self.joints
     }
 }
 

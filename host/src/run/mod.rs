@@ -18,9 +18,10 @@ pub mod windows;
 use anyhow::{bail, Context, Result};
 use evpose_core::geometry::{triangulate_views, Camera};
 use evpose_core::pipeline::{Engine, Workspace};
-use evpose_core::smooth::{AxisState, SmoothParams, Smoother};
+use evpose_core::smooth::{AxisState, Filter, FixedLag, Held, LagSlot, Smoother};
 use evpose_core::{Event, Joint2d, Plan};
 use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
 
 use crate::dataset::JOINTS;
 use crate::io::{Batch, EventReader};
@@ -129,8 +130,8 @@ pub struct RunOptions {
     pub rule: WindowRule,
     /// The most events a time window holds.
     pub capacity: usize,
-    /// The temporal filter; `None` reports the network's joints as they are.
-    pub smooth: Option<SmoothParams>,
+    /// The temporal filter.
+    pub filter: Filter,
 }
 
 /// One camera's pose in one window: a line of the output.
@@ -361,82 +362,69 @@ fn add(acc: &mut (f64, u64), (s, n): (f64, u64)) {
     acc.1 += n;
 }
 
-/// Runs a recording: reads `reader` to its end, estimating every window of `opts.rule` with
-/// `estimators` (one per camera of `opts.cameras`, in order), and calls `on_window` with each
-/// window's result, the window's events and, with `truth`, its ground truth.
-pub fn run(
-    reader: &mut dyn EventReader,
-    estimators: &mut [Box<dyn CameraEstimator + '_>],
-    opts: &RunOptions,
-    truth: Option<&Truth>,
-    mut on_window: impl FnMut(&RunWindow, &WindowEvents<'_>, Option<&WindowTruth>) -> Result<()>,
-) -> Result<RunSummary> {
-    if estimators.len() != opts.cameras.len() {
-        bail!(
-            "{} estimators for {} cameras",
-            estimators.len(),
-            opts.cameras.len()
-        );
-    }
-    if opts.cameras.is_empty() {
-        bail!("no camera to estimate");
-    }
-    let mut cutter = Cutter::new(opts.rule, opts.capacity)?;
-    let mut state = vec![[AxisState::default(); 2 * JOINTS]; opts.cameras.len()];
-    let mut smoothers: Vec<Smoother<'_>> = state
-        .iter_mut()
-        .map(|s| Smoother::new(opts.smooth.unwrap_or_default(), s))
-        .collect();
-    let mut summary = RunSummary {
-        cameras: opts.cameras.iter().map(|c| c.id).collect(),
-        ..RunSummary::default()
-    };
-    let (mut conf_sum, mut conf_n) = (0f64, 0u64);
-    let mut sums = Sums::default();
-    let first_t = std::cell::Cell::new(None::<i64>);
-    let mut events_buf: Vec<Event> = Vec::new();
+/// One camera's estimate of one window, before the temporal filter.
+struct Estimated {
+    camera: u8,
+    raw: Raw,
+    /// The network's joints in the sensor's pixels.
+    raw_joints: Vec<[f32; 2]>,
+}
 
-    let mut emit = |w: &WindowEvents<'_>| -> Result<()> {
-        let label = truth.and_then(|t| t.label(w.t_us, first_t.get().unwrap_or(0)));
-        let mut poses = Vec::with_capacity(opts.cameras.len());
-        let mut raws = Vec::with_capacity(opts.cameras.len());
-        for ((cam, est), smoother) in opts
-            .cameras
-            .iter()
-            .zip(estimators.iter_mut())
-            .zip(smoothers.iter_mut())
-        {
-            events_buf.clear();
-            events_buf.extend(w.of_camera(cam.id).filter_map(|e| cam.rescale.event(e)));
-            let raw: Raw = est
-                .estimate(&events_buf)
-                .with_context(|| format!("window {} camera {}", w.index, cam.id))?;
-            let model_px: Vec<[f32; 2]> = raw
-                .joints
-                .iter()
-                .map(|j| [f32::from(j.x), f32::from(j.y)])
-                .collect();
-            let raw_joints: Vec<[f32; 2]> =
-                model_px.iter().map(|&p| cam.rescale.joint(p)).collect();
-            let joints = match opts.smooth {
-                Some(_) if raw.confidence.len() == raw.joints.len() => {
-                    let mut out = vec![[0f32; 2]; raw.joints.len()];
-                    smoother
-                        .update(w.t_us.1, &raw.joints, &raw.confidence, &mut out)
-                        .map_err(|e| anyhow::anyhow!("{e}"))?;
-                    out.iter().map(|&p| cam.rescale.joint(p)).collect()
-                }
-                _ => raw_joints.clone(),
+/// A window waiting for the fixed-lag filter's later windows.
+struct Waiting {
+    index: usize,
+    t_us: (i64, i64),
+    /// Its events, for the callback (the cutter's ring moves on).
+    events: Vec<windows::Tagged>,
+    cameras: Vec<Estimated>,
+}
+
+/// Turns estimated (and filtered) windows into [`RunWindow`]s, keeps the run's sums, and hands
+/// each window to the callback.
+struct Reporter<'o, F> {
+    opts: &'o RunOptions,
+    truth: Option<&'o Truth>,
+    on_window: F,
+    summary: RunSummary,
+    conf: (f64, u64),
+    sums: Sums,
+    first_t: Option<i64>,
+}
+
+impl<F> Reporter<'_, F>
+where
+    F: FnMut(&RunWindow, &WindowEvents<'_>, Option<&WindowTruth>) -> Result<()>,
+{
+    /// Reports window `w` from each camera's estimate and, with the filter on, its filtered
+    /// joints (model pixels, per camera).
+    fn window(
+        &mut self,
+        w: &WindowEvents<'_>,
+        cameras: Vec<Estimated>,
+        filtered: Option<Vec<Vec<[f32; 2]>>>,
+    ) -> Result<()> {
+        let opts = self.opts;
+        let label = self
+            .truth
+            .and_then(|t| t.label(w.t_us, self.first_t.unwrap_or(0)));
+        let filter_on = filtered.is_some();
+        let mut filtered = filtered.map(Vec::into_iter);
+        let mut poses = Vec::with_capacity(cameras.len());
+        let mut raws = Vec::with_capacity(cameras.len());
+        for (est, cam) in cameras.into_iter().zip(&opts.cameras) {
+            let joints = match filtered.as_mut().and_then(Iterator::next) {
+                Some(f) => f.iter().map(|&p| cam.rescale.joint(p)).collect(),
+                None => est.raw_joints.clone(),
             };
             poses.push(CameraPose {
-                camera: cam.id,
-                events: raw.events,
-                points: raw.points,
+                camera: est.camera,
+                events: est.raw.events,
+                points: est.raw.points,
                 joints,
-                raw_joints: opts.smooth.map(|_| raw_joints.clone()),
-                confidence: raw.confidence,
+                raw_joints: filter_on.then(|| est.raw_joints.clone()),
+                confidence: est.raw.confidence,
             });
-            raws.push(raw_joints);
+            raws.push(est.raw_joints);
         }
         let confs: Vec<&[f32]> = poses.iter().map(|p| p.confidence.as_slice()).collect();
         let out_joints: Vec<&[[f32; 2]]> = poses.iter().map(|p| p.joints.as_slice()).collect();
@@ -445,21 +433,22 @@ pub fn run(
         // The network's own joints (before the filter) in 3-D, for the views' disagreement and
         // the unfiltered error.
         let raw_refs: Vec<&[[f32; 2]]> = raws.iter().map(|r| r.as_slice()).collect();
-        let raw3d = match opts.smooth {
-            Some(_) => triangulate_window(&opts.cameras, &raw_refs, &confs),
-            None => joints3d.clone(),
+        let raw3d = if filter_on {
+            triangulate_window(&opts.cameras, &raw_refs, &confs)
+        } else {
+            joints3d.clone()
         };
         let disagreement = raw3d
             .as_deref()
             .and_then(|j3| view_disagreement_px(&opts.cameras, &raw_refs, j3));
         let no_body = (!all.is_empty()).then(|| {
             let m = all.iter().sum::<f32>() / all.len() as f32;
-            conf_sum += all.iter().map(|&c| f64::from(c)).sum::<f64>();
-            conf_n += all.len() as u64;
-            summary.views_compared += usize::from(disagreement.is_some_and(f64::is_finite));
+            self.conf.0 += all.iter().map(|&c| f64::from(c)).sum::<f64>();
+            self.conf.1 += all.len() as u64;
+            self.summary.views_compared += usize::from(disagreement.is_some_and(f64::is_finite));
             no_body_seen(m, disagreement)
         });
-        summary.no_body_windows += usize::from(no_body == Some(true));
+        self.summary.no_body_windows += usize::from(no_body == Some(true));
         let window_truth = label.map(|l| WindowTruth {
             joints3d: l,
             cameras: opts
@@ -471,6 +460,7 @@ pub fn run(
                 })
                 .collect(),
         });
+        let sums = &mut self.sums;
         let error = window_truth.as_ref().map(|t| {
             sums.windows += 1;
             let mut e = WindowError::default();
@@ -502,24 +492,201 @@ pub fn run(
             joints3d,
             error,
         };
-        on_window(&result, w, window_truth.as_ref())
+        (self.on_window)(&result, w, window_truth.as_ref())
+    }
+
+    /// Reports the fixed-lag filter's ready windows, oldest first.
+    fn drain(
+        &mut self,
+        lagged: &mut [FixedLag<'_>],
+        waiting: &mut VecDeque<Waiting>,
+    ) -> Result<()> {
+        loop {
+            let mut filtered = Vec::with_capacity(lagged.len());
+            let mut number = None;
+            for (f, est) in lagged
+                .iter_mut()
+                .zip(waiting.front().map(|w| &w.cameras).into_iter().flatten())
+            {
+                let mut out = vec![[0f32; 2]; est.raw.joints.len()];
+                // Every camera's filter saw the same windows at the same times: all are ready
+                // together.
+                number = f.pop(&mut out);
+                if number.is_none() {
+                    return Ok(());
+                }
+                filtered.push(out);
+            }
+            let Some(w) = number.and(waiting.pop_front()) else {
+                return Ok(());
+            };
+            let events = WindowEvents {
+                index: w.index,
+                parts: (&w.events, &[]),
+                t_us: w.t_us,
+            };
+            self.window(&events, w.cameras, Some(filtered))?;
+        }
+    }
+}
+
+/// The confidences the fixed-lag filter weighs a camera's joints by: the model's, or 1 for
+/// every joint of a model without them (a plain mean).
+fn lag_weights(raw: &Raw) -> std::borrow::Cow<'_, [f32]> {
+    if raw.confidence.len() == raw.joints.len() {
+        std::borrow::Cow::Borrowed(&raw.confidence)
+    } else {
+        std::borrow::Cow::Owned(vec![1.0; raw.joints.len()])
+    }
+}
+
+/// Runs a recording: reads `reader` to its end, estimating every window of `opts.rule` with
+/// `estimators` (one per camera of `opts.cameras`, in order), and calls `on_window` with each
+/// window's result, the window's events and, with `truth`, its ground truth. With the
+/// fixed-lag filter, a window is reported once the filter's later windows have been estimated
+/// (its events are held until then), and at the end of the stream the last ones.
+pub fn run(
+    reader: &mut dyn EventReader,
+    estimators: &mut [Box<dyn CameraEstimator + '_>],
+    opts: &RunOptions,
+    truth: Option<&Truth>,
+    on_window: impl FnMut(&RunWindow, &WindowEvents<'_>, Option<&WindowTruth>) -> Result<()>,
+) -> Result<RunSummary> {
+    if estimators.len() != opts.cameras.len() {
+        bail!(
+            "{} estimators for {} cameras",
+            estimators.len(),
+            opts.cameras.len()
+        );
+    }
+    if opts.cameras.is_empty() {
+        bail!("no camera to estimate");
+    }
+    let mut cutter = Cutter::new(opts.rule, opts.capacity)?;
+    let joints: Vec<usize> = estimators.iter().map(|e| e.joints()).collect();
+    // The One-Euro filter's state: two coordinates per joint and camera.
+    let mut euro_state: Vec<Vec<AxisState>> = joints
+        .iter()
+        .map(|&j| vec![AxisState::default(); 2 * j])
+        .collect();
+    let mut euros: Vec<Smoother<'_>> = match opts.filter {
+        Filter::OneEuro(p) => euro_state.iter_mut().map(|s| Smoother::new(p, s)).collect(),
+        _ => Vec::new(),
+    };
+    // The fixed-lag filter's: 2·lag + 1 windows per camera.
+    let lag = match opts.filter {
+        Filter::FixedLag(p) => Some(p),
+        _ => None,
+    };
+    let slots = lag.map_or(0, |p| FixedLag::slots_for(p.lag));
+    let mut lag_slots = vec![vec![LagSlot::default(); slots]; joints.len()];
+    let mut lag_held: Vec<Vec<Held>> = joints
+        .iter()
+        .map(|&j| vec![Held::default(); slots * j])
+        .collect();
+    let mut lagged: Vec<FixedLag<'_>> = match lag {
+        Some(p) => lag_slots
+            .iter_mut()
+            .zip(lag_held.iter_mut())
+            .zip(&joints)
+            .map(|((s, h), &j)| FixedLag::with_params(p, j, s, h))
+            .collect::<Result<_, _>>()
+            .map_err(|e| anyhow::anyhow!("{e}"))?,
+        None => Vec::new(),
+    };
+    let mut waiting: VecDeque<Waiting> = VecDeque::new();
+    let mut reporter = Reporter {
+        opts,
+        truth,
+        on_window,
+        summary: RunSummary {
+            cameras: opts.cameras.iter().map(|c| c.id).collect(),
+            ..RunSummary::default()
+        },
+        conf: (0.0, 0),
+        sums: Sums::default(),
+        first_t: None,
+    };
+    let mut events_buf: Vec<Event> = Vec::new();
+
+    let mut emit = |w: &WindowEvents<'_>, reporter: &mut Reporter<'_, _>| -> Result<()> {
+        let mut cameras = Vec::with_capacity(opts.cameras.len());
+        for (cam, est) in opts.cameras.iter().zip(estimators.iter_mut()) {
+            events_buf.clear();
+            events_buf.extend(w.of_camera(cam.id).filter_map(|e| cam.rescale.event(e)));
+            let raw: Raw = est
+                .estimate(&events_buf)
+                .with_context(|| format!("window {} camera {}", w.index, cam.id))?;
+            let raw_joints = raw
+                .joints
+                .iter()
+                .map(|j| cam.rescale.joint([f32::from(j.x), f32::from(j.y)]))
+                .collect();
+            cameras.push(Estimated {
+                camera: cam.id,
+                raw,
+                raw_joints,
+            });
+        }
+        match opts.filter {
+            Filter::Off => reporter.window(w, cameras, None),
+            Filter::OneEuro(_) => {
+                let mut filtered = Vec::with_capacity(cameras.len());
+                for (est, smoother) in cameras.iter().zip(euros.iter_mut()) {
+                    let raw = &est.raw;
+                    let mut out: Vec<[f32; 2]> = raw
+                        .joints
+                        .iter()
+                        .map(|j| [f32::from(j.x), f32::from(j.y)])
+                        .collect();
+                    // A model without confidences is not filtered.
+                    if raw.confidence.len() == raw.joints.len() {
+                        smoother
+                            .update(w.t_us.1, &raw.joints, &raw.confidence, &mut out)
+                            .map_err(|e| anyhow::anyhow!("{e}"))?;
+                    }
+                    filtered.push(out);
+                }
+                reporter.window(w, cameras, Some(filtered))
+            }
+            Filter::FixedLag(_) => {
+                for (est, f) in cameras.iter().zip(lagged.iter_mut()) {
+                    f.push(w.t_us.1, &est.raw.joints, &lag_weights(&est.raw))
+                        .map_err(|e| anyhow::anyhow!("{e}"))?;
+                }
+                waiting.push_back(Waiting {
+                    index: w.index,
+                    t_us: w.t_us,
+                    events: w.parts.0.iter().chain(w.parts.1).copied().collect(),
+                    cameras,
+                });
+                reporter.drain(&mut lagged, &mut waiting)
+            }
+        }
     };
 
     let mut batch = Batch::default();
     while reader.read_batch(&mut batch)? {
-        summary.events += batch.events.len() as u64;
+        reporter.summary.events += batch.events.len() as u64;
         for (&c, &e) in batch.cameras.iter().zip(&batch.events) {
-            if first_t.get().is_none() {
-                first_t.set(Some(e.t));
+            if reporter.first_t.is_none() {
+                reporter.first_t = Some(e.t);
             }
-            cutter.push(c, e, &mut emit)?;
+            cutter.push(c, e, &mut |w| emit(w, &mut reporter))?;
         }
     }
-    cutter.finish(&mut emit)?;
+    cutter.finish(&mut |w| emit(w, &mut reporter))?;
+    for f in &mut lagged {
+        f.finish();
+    }
+    reporter.drain(&mut lagged, &mut waiting)?;
+    let mut summary = reporter.summary;
     summary.windows = cutter.windows();
     summary.dropped = cutter.dropped();
-    summary.mean_confidence = (conf_n > 0).then(|| conf_sum / conf_n as f64);
+    summary.mean_confidence =
+        (reporter.conf.1 > 0).then(|| reporter.conf.0 / reporter.conf.1 as f64);
     if truth.is_some() {
+        let sums = reporter.sums;
         summary.errors = Some(Errors {
             mpjpe2d_px: mean(sums.d2),
             mpjpe2d_raw_px: mean(sums.d2_raw),

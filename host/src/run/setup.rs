@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use evpose_core::smooth::SmoothParams;
+use evpose_core::smooth::Filter;
 use evpose_core::DType;
 
 use super::camera::{self, CameraEstimator, Rescale};
@@ -53,8 +53,8 @@ pub struct Request {
     pub points: Option<usize>,
     /// Seed of the point samplers.
     pub seed: u64,
-    /// The temporal filter; `None`: off.
-    pub smooth: Option<SmoothParams>,
+    /// The temporal filter.
+    pub filter: Filter,
     /// Ground truth file; `None`: beside the recording, if any (the bundled clip's own).
     pub gt: Option<PathBuf>,
     /// Calibration directory; `None`: beside the recording, else DHP19's for DHP19 files.
@@ -105,6 +105,8 @@ pub struct Description {
     pub truth: Option<String>,
     /// Whether the recording is synthetic (the bundled clip, or `evpose sim` output).
     pub synthetic: bool,
+    /// The temporal filter, in words.
+    pub filter: String,
 }
 
 impl Plan {
@@ -282,7 +284,7 @@ impl Plan {
                 cameras,
                 rule,
                 capacity,
-                smooth: req.smooth,
+                filter: req.filter,
             },
             truth,
             description: Description {
@@ -293,6 +295,7 @@ impl Plan {
                 window,
                 truth: truth_name,
                 synthetic,
+                filter: describe_filter(&req.filter),
             },
         })
     }
@@ -340,6 +343,22 @@ impl Plan {
                 on_window,
             ),
         }
+    }
+}
+
+/// The filter in words, for `evpose run`'s header.
+pub fn describe_filter(f: &Filter) -> String {
+    match f {
+        Filter::Off => "off".into(),
+        Filter::OneEuro(p) => format!(
+            "causal One-Euro (min cut-off {} Hz, beta {}, full step at confidence {})",
+            p.min_cutoff_hz, p.beta, p.full_confidence
+        ),
+        Filter::FixedLag(p) => format!(
+            "fixed-lag confidence-weighted mean of {} windows (each window out {} windows later)",
+            2 * p.lag + 1,
+            p.lag
+        ),
     }
 }
 
