@@ -421,21 +421,18 @@ fn run_on_the_bundled_clip_follows_its_ground_truth() {
     // The default filter is the fixed-lag mean (lag 3): every window once, in order, and each
     // camera's joints the c²-weighted mean of the network's joints (`raw_joints`) of up to 3
     // windows either side, recomputed here in f64 (the core sums in f32: 1e-3 px).
-    let raw_of = |w: usize, c: usize, j: usize, a: usize| {
-        windows[w]["cameras"][c]["raw_joints"][j][a]
-            .as_f64()
-            .unwrap()
-    };
     for (k, w) in windows.iter().enumerate() {
         assert_eq!(w["window"], k);
         for c in 0..2 {
             for j in 0..13 {
                 for a in 0..2 {
                     let (mut sum, mut weights) = (0f64, 0f64);
-                    for m in k.saturating_sub(3)..(k + 4).min(windows.len()) {
-                        let conf = windows[m]["cameras"][c]["confidence"][j].as_f64().unwrap();
+                    let near = &windows[k.saturating_sub(3)..(k + 4).min(windows.len())];
+                    for m in near {
+                        let cam = &m["cameras"][c];
+                        let conf = cam["confidence"][j].as_f64().unwrap();
                         let weight = f64::from((conf * conf) as f32 + 1e-6);
-                        sum += weight * raw_of(m, c, j, a);
+                        sum += weight * cam["raw_joints"][j][a].as_f64().unwrap();
                         weights += weight;
                     }
                     let got = w["cameras"][c]["joints"][j][a].as_f64().unwrap();
@@ -466,7 +463,10 @@ fn run_on_the_bundled_clip_follows_its_ground_truth() {
     let euro: Vec<serde_json::Value> =
         serde_json::from_str(&std::fs::read_to_string(&euro_out).unwrap()).unwrap();
     assert_eq!(euro.len(), 12);
-    assert_eq!(euro[0]["cameras"][0]["joints"], euro[0]["cameras"][0]["raw_joints"]);
+    assert_eq!(
+        euro[0]["cameras"][0]["joints"],
+        euro[0]["cameras"][0]["raw_joints"]
+    );
     assert!(euro[1..]
         .iter()
         .any(|w| w["cameras"][0]["joints"] != w["cameras"][0]["raw_joints"]));
