@@ -23,7 +23,7 @@ use std::time::{Duration, Instant};
 use evpose_core::kernels::Kernels;
 use evpose_core::model::FEATURES;
 use evpose_core::pipeline::{PipelineError, I8};
-use evpose_core::smooth::{AxisState, SmoothParams, Smoother};
+use evpose_core::smooth::{AxisState, FixedLag, Held, LagParams, LagSlot, SmoothParams, Smoother};
 use evpose_core::{
     scratch_words, Davis346Storage, Estimator, Event, Joint2d, Model, Plan, RasterConfig,
     Rasterizer, Session, Workspace,
@@ -458,9 +458,31 @@ fn firmware_windows(lines: &[String]) -> Vec<(WindowResult, String)> {
     out
 }
 
+/// The fixed-lag filter's outputs in the order they came: (window, `[x, y]` per joint as f32
+/// bits).
+type Lagged = Vec<(u64, Vec<u32>)>;
+
+/// The firmware's `lagged:` lines.
+fn firmware_lagged(lines: &[String]) -> Lagged {
+    lines
+        .iter()
+        .filter_map(|l| l.strip_prefix("lagged: "))
+        .map(|l| {
+            let bits = l
+                .split_once("bits=[")
+                .and_then(|(_, b)| b.strip_suffix(']'))
+                .expect("a list")
+                .split(',')
+                .map(|v| v.trim().parse().expect("a number"))
+                .collect();
+            (field(l, "window"), bits)
+        })
+        .collect()
+}
+
 /// The firmware's pipeline, on the host: the same core session over the same stream, storage,
-/// seed and model blob, with the same digests.
-fn host_windows(events: &[Event], blob: &[u8]) -> Vec<WindowResult> {
+/// seed and model blob, with the same digests; and the fixed-lag filter's outputs.
+fn host_windows(events: &[Event], blob: &[u8]) -> (Vec<WindowResult>, Lagged) {
     let model = Model::parse(blob).unwrap();
     let (j, w, h) = (model.joints(), model.width(), model.height());
     // The firmware's storage type, on the heap (122 KiB) and borrowed, as the firmware
@@ -486,6 +508,21 @@ fn host_windows(events: &[Event], blob: &[u8]) -> Vec<WindowResult> {
     let scales = model.head_scales().expect("a version 3 blob");
     let mut smooth_state = vec![AxisState::default(); 2 * j];
     let mut smoother = Smoother::new(SmoothParams::DEFAULT, &mut smooth_state);
+    // The firmware's lag (1; the host's default is 3).
+    let lag = LagParams {
+        lag: 1,
+        ..LagParams::DEFAULT
+    };
+    let mut lag_slots = vec![LagSlot::default(); FixedLag::slots_for(lag.lag)];
+    let mut lag_held = vec![Held::default(); lag_slots.len() * j];
+    let mut lagged = FixedLag::with_params(lag, j, &mut lag_slots, &mut lag_held).unwrap();
+    let mut lagged_out = Vec::new();
+    let pop = |f: &mut FixedLag<'_>, to: &mut Lagged| {
+        let mut buf = vec![[0f32; 2]; j];
+        while let Some(k) = f.pop(&mut buf) {
+            to.push((k, buf.iter().flatten().map(|v| v.to_bits()).collect()));
+        }
+    };
     let mut out = Vec::new();
     // Event by event, unlike the firmware's batches: windows do not depend on batching.
     for e in events {
@@ -499,6 +536,8 @@ fn host_windows(events: &[Event], blob: &[u8]) -> Vec<WindowResult> {
                 smoother
                     .update(s.t_max, e.joints, &confidence, &mut filtered)
                     .unwrap();
+                lagged.push(s.t_max, e.joints, &confidence).unwrap();
+                pop(&mut lagged, &mut lagged_out);
                 out.push(WindowResult {
                     events: s.events,
                     points: e.window.len(),
@@ -515,7 +554,9 @@ fn host_windows(events: &[Event], blob: &[u8]) -> Vec<WindowResult> {
             })
             .unwrap();
     }
-    out
+    lagged.finish();
+    pop(&mut lagged, &mut lagged_out);
+    (out, lagged_out)
 }
 
 #[test]
@@ -546,7 +587,7 @@ fn firmware_matches_the_host_core_under_qemu() {
 
     let (_, events) = evs::decode(&std::fs::read(event_asset()).unwrap()).unwrap();
     let blob = AlignedBlob::new(&std::fs::read(model_asset()).unwrap());
-    let host = host_windows(&events, blob.bytes());
+    let (host, host_lagged) = host_windows(&events, blob.bytes());
     let firmware = firmware_windows(&lines);
     assert_eq!(host.len(), WINDOWS.len());
     assert_eq!(
@@ -558,6 +599,17 @@ fn firmware_matches_the_host_core_under_qemu() {
     for (i, ((fw, _), h)) in firmware.iter().zip(&host).enumerate() {
         assert_eq!(fw, h, "window {i}: firmware (left) and host (right) differ");
     }
+    // The fixed-lag filter: every window once, in order, the same bits; the windows differ.
+    assert_eq!(
+        host_lagged.iter().map(|l| l.0).collect::<Vec<_>>(),
+        (0..host.len() as u64).collect::<Vec<_>>()
+    );
+    assert!(host_lagged.windows(2).all(|p| p[0].1 != p[1].1));
+    assert_eq!(
+        firmware_lagged(&lines),
+        host_lagged,
+        "fixed-lag filter: firmware (left) and host (right) differ"
+    );
     let done = lines
         .iter()
         .find(|l| l.starts_with("done:"))

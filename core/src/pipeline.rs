@@ -464,6 +464,10 @@ impl<'m, S: RasterStorage> Session<'m, S> {
 
     /// Feeds a whole batch, calling `on_window` with each window it closes, in order: the
     /// per-window loop of every evpose pipeline (host and firmware).
+    ///
+    /// Always inlined: outlined on the Cortex-M7, the rasterizer's fill loop inside it spilled
+    /// more and cost 140.2 instead of 133.3 instructions per event (QEMU, `firmware_qemu`).
+    #[inline(always)]
     pub fn feed<E: Engine, Err: From<PipelineError>>(
         &mut self,
         events: &[Event],
@@ -477,7 +481,8 @@ impl<'m, S: RasterStorage> Session<'m, S> {
             if let Some(e) = estimate {
                 on_window(e)?;
             }
-            rest = &rest[used..];
+            // `extend` uses at most what it was given; `get` keeps a panic path out of firmware.
+            rest = rest.get(used..).unwrap_or_default();
         }
         Ok(())
     }

@@ -102,15 +102,19 @@ pub fn sample_indices<'o, R: RngCore>(
             *slot = i;
         }
     } else if m >= n {
-        let mut chosen = 0;
+        // Selection sampling: each index is kept with probability needed / remaining, so
+        // exactly `n` are kept; `out` holds `n` (an iterator, not indexing: no panic path).
+        let mut slots = out.iter_mut();
+        let mut needed = n as u32;
         for i in 0..m32 {
-            let needed = (n - chosen) as u32;
             if needed == 0 {
                 break;
             }
             if below(rng, m32 - i) < needed {
-                out[chosen] = i;
-                chosen += 1;
+                if let Some(slot) = slots.next() {
+                    *slot = i;
+                }
+                needed -= 1;
             }
         }
     } else {

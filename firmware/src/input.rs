@@ -142,22 +142,46 @@ impl<R: Read> EvsReader<R> {
     /// The next word, refilling the buffer from the source as needed (a source may return any
     /// number of bytes per read, so a word can straddle two reads).
     fn next_word(&mut self) -> Result<u32, StreamError> {
-        while self.end - self.start < 4 {
-            self.buf.copy_within(self.start..self.end, 0);
-            self.end -= self.start;
-            self.start = 0;
-            let n = self
-                .source
-                .read(&mut self.buf[self.end..])
-                .map_err(|e| StreamError::Read(embedded_io::Error::kind(&e)))?;
-            if n == 0 {
-                return Err(StreamError::UnexpectedEof);
+        // `get` and `first_chunk` rather than indexing: `start ≤ end ≤ 256` always holds, and
+        // no panic path is left in the image.
+        loop {
+            if self.end >= self.start + 4 {
+                if let Some(w) = self
+                    .buf
+                    .get(self.start..)
+                    .and_then(|b| b.first_chunk::<4>())
+                {
+                    self.start += 4;
+                    return Ok(u32::from_le_bytes(*w));
+                }
             }
-            self.end += n;
+            self.refill()?;
         }
-        let b = &self.buf[self.start..self.start + 4];
-        self.start += 4;
-        Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    }
+
+    /// Moves the fewer than 4 bytes not yet decoded to the front of the buffer and reads more
+    /// behind them.
+    #[inline(never)]
+    fn refill(&mut self) -> Result<(), StreamError> {
+        let pending = self.buf.get(self.start..self.end).unwrap_or_default();
+        let mut carry = [0u8; 4];
+        let kept = pending.len().min(carry.len());
+        for (c, &b) in carry.iter_mut().zip(pending) {
+            *c = b;
+        }
+        for (b, &c) in self.buf.iter_mut().zip(&carry).take(kept) {
+            *b = c;
+        }
+        (self.start, self.end) = (0, kept);
+        let n = self
+            .source
+            .read(self.buf.get_mut(kept..).unwrap_or_default())
+            .map_err(|e| StreamError::Read(embedded_io::Error::kind(&e)))?;
+        if n == 0 {
+            return Err(StreamError::UnexpectedEof);
+        }
+        self.end += n;
+        Ok(())
     }
 
     fn step(&mut self, dt: i64) -> Result<(), StreamError> {

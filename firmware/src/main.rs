@@ -33,7 +33,9 @@ use evpose_core::kernels::{self, Kernels};
 use evpose_core::model::{DType, ModelError, FEATURES};
 use evpose_core::pipeline::{Estimate, PipelineError, Profiler, Step, I8};
 use evpose_core::raster::ConfigError;
-use evpose_core::smooth::{AxisState, SmoothParams, Smoother, StateTooSmall};
+use evpose_core::smooth::{
+    AxisState, FixedLag, Held, LagError, LagParams, LagSlot, SmoothParams, Smoother, StateTooSmall,
+};
 use evpose_core::{
     scratch_words_for_block, Davis346Storage, Estimator, Event, InferError, Joint2d, Model, Plan,
     RasterConfig, Rasterizer, Session, Workspace,
@@ -109,6 +111,8 @@ enum Error {
     NoHeadScales,
     /// The temporal filter's state does not hold the model's joints.
     Smooth(StateTooSmall),
+    /// The fixed-lag filter refused (its state, or a window's shape).
+    Lag(LagError),
 }
 
 macro_rules! from {
@@ -282,6 +286,19 @@ fn run(per_tick: u64) -> Result<(), Error> {
     // The temporal filter over windows (`core::smooth`, the host's defaults): 26 coordinates.
     let mut smooth_state = [AxisState::default(); 2 * JOINTS];
     let mut smoother = Smoother::new(SmoothParams::DEFAULT, &mut smooth_state);
+    // The fixed-lag filter (`core::smooth::FixedLag`): lag 1 here, 3 on the host by default.
+    // The bundled stream has three windows; with lag 3 each would be the mean of all three, and
+    // the host comparison would show less. Each window comes out one window later, the last
+    // at the end of the stream.
+    const LAG: LagParams = LagParams {
+        lag: 1,
+        ..LagParams::DEFAULT
+    };
+    const LAG_SLOTS: usize = FixedLag::slots_for(LAG.lag);
+    let mut lag_slots = [LagSlot::default(); LAG_SLOTS];
+    let mut lag_held = [Held::default(); LAG_SLOTS * JOINTS];
+    let mut lagged =
+        FixedLag::with_params(LAG, JOINTS, &mut lag_slots, &mut lag_held).map_err(Error::Lag)?;
     let mut source = EvsReader::new(&EVENTS[..])?;
     let h = *source.header();
     println!(
@@ -297,10 +314,22 @@ fn run(per_tick: u64) -> Result<(), Error> {
         }
         // The whole batch at once: the session rasterizes with `extend` (the same windows as
         // pushing event by event) and estimates every window the batch closes.
-        session.feed(&events[..n], &mut ws, &mut &clock, |e| {
-            report(&e, &clock, one_point, &model, scales, &mut smoother)
+        // `read_events` returns at most the batch's length; `get` keeps a panic path out.
+        let batch = events.get(..n).unwrap_or_default();
+        session.feed(batch, &mut ws, &mut &clock, |e| {
+            report(
+                &e,
+                &clock,
+                one_point,
+                &model,
+                scales,
+                &mut smoother,
+                &mut lagged,
+            )
         })?;
     }
+    lagged.finish();
+    print_lagged(&mut lagged, &clock);
     let r = session.rasterizer();
     let s = r.stats();
     println!(
@@ -323,6 +352,7 @@ fn report(
     model: &Model<'_>,
     scales: [f32; 2],
     smoother: &mut Smoother<'_>,
+    lagged: &mut FixedLag<'_>,
 ) -> Result<(), Error> {
     let s = e.window.summary();
     let d = e.digest();
@@ -364,15 +394,47 @@ fn report(
         *bits = v.to_bits();
     }
     println!("window={=u32} filtered_bits={}", e.index, filtered_bits);
+    // The fixed-lag filter: this window in, the windows it completes out.
+    let t = clock::ticks();
+    lagged
+        .push(s.t_max, e.joints, &confidence)
+        .map_err(Error::Lag)?;
+    let lag_instructions = clock.since(t) + print_lagged(lagged, clock);
     let [rasterize, sample, infer, decode, input] = clock.take();
     let n = e.input.len() as u64;
     let per_point = infer.saturating_sub(one_point) / (n - 1).max(1);
     let per_mac = per_point as f32 / model.macs_per_point() as f32;
     println!(
-        "window={=u32} instructions input={=u64} rasterize={=u64} sample={=u64} infer={=u64} decode={=u64} confidence={=u64} filter={=u64} infer_one_point={=u64} per_point={=u64} per_point_layer_mac={=f32}",
-        e.index, input, rasterize, sample, infer, decode, confidence_instructions, filter_instructions, one_point, per_point, per_mac
+        "window={=u32} instructions input={=u64} rasterize={=u64} sample={=u64} infer={=u64} decode={=u64} confidence={=u64} filter={=u64} lag_filter={=u64} infer_one_point={=u64} per_point={=u64} per_point_layer_mac={=f32}",
+        e.index, input, rasterize, sample, infer, decode, confidence_instructions, filter_instructions, lag_instructions, one_point, per_point, per_mac
     );
     Ok(())
+}
+
+/// Prints the fixed-lag filter's ready windows (`lagged: window=K instructions=N bits=[…]`:
+/// the instructions of its `pop`, its joints as f32 bits) and returns the instructions the pops
+/// took.
+#[inline(never)]
+fn print_lagged(lagged: &mut FixedLag<'_>, clock: &StageClock) -> u64 {
+    let mut spent = 0;
+    loop {
+        let mut out = [[0f32; 2]; JOINTS];
+        let t = clock::ticks();
+        let popped = lagged.pop(&mut out);
+        let took = clock.since(t);
+        spent += took;
+        let Some(k) = popped else {
+            return spent;
+        };
+        let mut bits = [0u32; 2 * JOINTS];
+        for (b, v) in bits.iter_mut().zip(out.iter().flatten()) {
+            *b = v.to_bits();
+        }
+        println!(
+            "lagged: window={=u64} instructions={=u64} bits={}",
+            k, took, bits
+        );
+    }
 }
 
 #[exception]
