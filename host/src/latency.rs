@@ -59,7 +59,9 @@ pub struct Measured {
     /// earlier 2,048-point model); re-based on the 123,920 that the same windows measure at
     /// N = 256 since e0ea59f (the slope kept). Since 700217b a point's slice and row are split
     /// from its row bin when it is read: the same windows measure 129,200 at N = 256, all of
-    /// the 5,280 more counted per sampled point (+20.6), this intercept kept.
+    /// the 5,280 more counted per sampled point (+20.6), this intercept kept. Re-based at
+    /// 9ac3718 on the 117,693 they measure at N = 256 since the selection loop writes through
+    /// an iterator (the slope kept).
     pub sample_instructions_per_window: f64,
     /// Sampling, instructions per sampled point.
     pub instructions_per_sampled_point: f64,
