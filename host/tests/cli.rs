@@ -403,6 +403,7 @@ fn run_estimates_a_recording_with_the_default_model() {
     // Bad requests are refused with a reason.
     assert!(evpose_err(&["run", "--events", s(&street), "--cameras", "3"]).contains("no camera 3"));
     assert!(evpose_err(&["run", "--events", s(&street), "--stride", "9000"]).contains("stride"));
+    assert!(evpose_err(&["run", "--events", s(&street), "--lag", "65"]).contains("at most 64"));
     assert!(evpose_err(&["run", "--events", s(&street), "--engine", "tract"]).contains(".onnx"));
     assert!(evpose_err(&["run", "--events", s(&street), "--out", "x.txt"]).contains(".jsonl"));
 }

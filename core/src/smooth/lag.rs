@@ -12,8 +12,10 @@
 //! end of a stream, [`FixedLag::finish`] releases the last ones). Where that latency is too
 //! much, the causal [`super::Smoother`] (One-Euro) has none.
 //!
-//! A segment ends at a gap longer than `reset_after_us`, at time going back and at
-//! [`FixedLag::finish`]; no window is averaged with another segment's.
+//! A segment ends at a gap longer than `reset_after_us` between two windows' times, at time
+//! going back and at [`FixedLag::finish`]; no window is averaged with another segment's. (Time
+//! windows cut across a pause are windows too, one per stride, so they do not end a segment:
+//! they hold the network's guesses on no events, which weigh little when its confidence is low.)
 //!
 //! Fixed memory: the caller lends `2 · lag + 1` [`LagSlot`]s and as many [`Held`] per joint.
 //! ```
@@ -147,9 +149,10 @@ pub struct FixedLag<'s> {
 }
 
 impl<'s> FixedLag<'s> {
-    /// Slots to lend for `lag`: `2 · lag + 1`.
+    /// Slots to lend for `lag`: `2 · lag + 1` (saturating: a lag no memory can hold asks for
+    /// `usize::MAX`).
     pub const fn slots_for(lag: usize) -> usize {
-        2 * lag + 1
+        lag.saturating_mul(2).saturating_add(1)
     }
 
     /// A smoother with `lag` windows on each side for `joints` joints, restarting after gaps
@@ -163,6 +166,12 @@ impl<'s> FixedLag<'s> {
         held: &'s mut [Held],
     ) -> Result<Self, LagError> {
         let windows = Self::slots_for(lag);
+        if windows == usize::MAX {
+            return Err(LagError::StateTooSmall {
+                needed: windows,
+                got: slots.len(),
+            });
+        }
         if slots.len() < windows {
             return Err(LagError::StateTooSmall {
                 needed: windows,
@@ -237,7 +246,7 @@ impl<'s> FixedLag<'s> {
             return Err(LagError::NotPopped);
         }
         let gap = self.last_t_us.map(|last| t_us - last);
-        if gap.is_some_and(|d| d <= 0 || d > self.reset_after_us) {
+        if gap.is_some_and(|d| d < 0 || d > self.reset_after_us) {
             self.end_segment();
         }
         self.last_t_us = Some(t_us);
@@ -253,8 +262,8 @@ impl<'s> FixedLag<'s> {
             .skip(slot * self.joints)
             .take(self.joints);
         for ((h, j), &c) in row.zip(joints).zip(confidence) {
-            // NaN confidence weighs nothing beyond the floor.
-            let c = if c.is_nan() { 0.0 } else { c };
+            // Confidences are in [0, 1]; NaN weighs nothing beyond the floor.
+            let c = if c.is_nan() { 0.0 } else { c.clamp(0.0, 1.0) };
             *h = Held {
                 x: f32::from(j.x),
                 y: f32::from(j.y),
@@ -388,6 +397,9 @@ mod tests {
 
     #[test]
     fn confidence_weights_and_zero_confidence_is_a_plain_mean() {
+        // Confidences beyond [0, 1] are clamped: an infinite one weighs as 1.
+        let inf = run(1, &[(0, 10, 1.0), (30_000, 90, f32::INFINITY)]);
+        assert!(inf.iter().all(|g| g.1.is_finite()), "{inf:?}");
         // Window 1 is an outlier the network was unsure of.
         let got = run(1, &[(0, 10, 1.0), (30_000, 90, 0.1), (60_000, 10, 1.0)]);
         assert!(got[1].1 < 12.0, "{got:?}");
@@ -417,6 +429,9 @@ mod tests {
         );
         let back = run(2, &[(60_000, 10, 1.0), (30_000, 50, 1.0)]);
         assert_eq!(back, vec![(0, 10.0), (1, 50.0)]);
+        // Two windows ending at the same time (sliding windows) stay in one segment.
+        let same = run(1, &[(60_000, 10, 1.0), (60_000, 50, 1.0)]);
+        assert!(same.iter().all(|g| (g.1 - 30.0).abs() < 1e-3), "{same:?}");
     }
 
     #[test]
@@ -430,6 +445,14 @@ mod tests {
         assert_eq!(
             FixedLag::new(1, 3, 1, &mut slots, &mut held).unwrap_err(),
             LagError::StateTooSmall { needed: 9, got: 8 }
+        );
+        // A lag no memory holds is refused, not wrapped around.
+        assert_eq!(
+            FixedLag::new(usize::MAX / 2, J, 1, &mut slots, &mut held).unwrap_err(),
+            LagError::StateTooSmall {
+                needed: usize::MAX,
+                got: 4
+            }
         );
         let mut f = FixedLag::new(1, J, 1_000_000, &mut slots, &mut held).unwrap();
         assert!(matches!(

@@ -146,7 +146,7 @@ pub struct EvalArgs {
     #[arg(long, default_value_t = SmoothParams::DEFAULT.full_confidence)]
     pub full_confidence: f32,
     /// Windows each side of the fixed-lag filter (with --smooth).
-    #[arg(long, default_value_t = LagParams::DEFAULT.lag)]
+    #[arg(long, default_value_t = LagParams::DEFAULT.lag, value_parser = super::lag_in_range)]
     pub lag: usize,
 }
 

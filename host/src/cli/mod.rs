@@ -99,6 +99,19 @@ pub struct ConvertArgs {
     pub input: InputArgs,
 }
 
+/// The longest `--lag` the fixed-lag filter takes: 64 windows each side (each window waits
+/// for 64 more, with its events held).
+pub const MAX_LAG: usize = 64;
+
+/// Parses `--lag`: windows each side, 0 to [`MAX_LAG`].
+pub fn lag_in_range(s: &str) -> std::result::Result<usize, String> {
+    let lag: usize = s.parse().map_err(|e| format!("{e}"))?;
+    if lag > MAX_LAG {
+        return Err(format!("at most {MAX_LAG} windows"));
+    }
+    Ok(lag)
+}
+
 /// How `info` and `convert` read a recording: the format, and what the file may not say.
 #[derive(Args, Clone, Debug, Default, PartialEq, Eq)]
 pub struct InputArgs {

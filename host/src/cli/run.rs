@@ -95,7 +95,7 @@ pub struct RunArgs {
     #[arg(long, value_enum, default_value_t = Smooth::FixedLag)]
     pub smooth: Smooth,
     /// Windows each side of the fixed-lag filter (its latency in windows).
-    #[arg(long, default_value_t = LagParams::DEFAULT.lag)]
+    #[arg(long, default_value_t = LagParams::DEFAULT.lag, value_parser = super::lag_in_range)]
     pub lag: usize,
     /// Ground truth (`.gt.npy` of `evpose sim`, or DHP19's `.mat`; default: the one beside
     /// the recording, if any).

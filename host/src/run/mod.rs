@@ -6,7 +6,8 @@
 //! The stream is read once, in batches, and cut into windows over all cameras together
 //! ([`windows::Cutter`]: by events or time, tumbling or sliding); each window's events of each
 //! selected camera go through that camera's estimator ([`camera`]: the core's per-window
-//! [`evpose_core::Session`], or tract); memory is one window of events plus the estimators.
+//! [`evpose_core::Session`], or tract); memory is one window of events plus the estimators
+//! (with the fixed-lag filter, also the events of the windows waiting for their later ones).
 //! Output goes to a callback as [`RunWindow`]s, the schema [`output`] writes.
 
 pub mod camera;
@@ -665,21 +666,27 @@ pub fn run(
         }
     };
 
-    let mut batch = Batch::default();
-    while reader.read_batch(&mut batch)? {
-        reporter.summary.events += batch.events.len() as u64;
-        for (&c, &e) in batch.cameras.iter().zip(&batch.events) {
-            if reporter.first_t.is_none() {
-                reporter.first_t = Some(e.t);
+    let fed = (|| -> Result<()> {
+        let mut batch = Batch::default();
+        while reader.read_batch(&mut batch)? {
+            reporter.summary.events += batch.events.len() as u64;
+            for (&c, &e) in batch.cameras.iter().zip(&batch.events) {
+                if reporter.first_t.is_none() {
+                    reporter.first_t = Some(e.t);
+                }
+                cutter.push(c, e, &mut |w| emit(w, &mut reporter))?;
             }
-            cutter.push(c, e, &mut |w| emit(w, &mut reporter))?;
         }
-    }
-    cutter.finish(&mut |w| emit(w, &mut reporter))?;
+        cutter.finish(&mut |w| emit(w, &mut reporter))
+    })();
+    // The fixed-lag filter's last windows, also when reading or estimating failed: every
+    // window estimated is reported before the error.
     for f in &mut lagged {
         f.finish();
     }
-    reporter.drain(&mut lagged, &mut waiting)?;
+    let drained = reporter.drain(&mut lagged, &mut waiting);
+    fed?;
+    drained?;
     let mut summary = reporter.summary;
     summary.windows = cutter.windows();
     summary.dropped = cutter.dropped();
