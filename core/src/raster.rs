@@ -482,8 +482,13 @@ impl<S: RasterStorage> Rasterizer<S> {
             return 0;
         }
         let start = self.len;
-        let mut t_last = self.t_last;
-        let mut backwards = 0u64;
+        // In the loop, times are offsets from `t_first` in i32 (fewer live registers on a
+        // 32-bit MCU), starting from the last stored event's: with `len > 0` that event is in
+        // this window (`insert` and this loop store only offsets that fit), so it fits.
+        let mut d_last = i32::try_from(self.t_last.wrapping_sub(t_first)).unwrap_or(i32::MIN);
+        // `e.t − t_lo` is `d − i32::MIN` for `d = e.t − t_first`, wrapping the same way.
+        let t_lo = t_first.wrapping_add(i64::from(i32::MIN));
+        let mut backwards = 0usize;
         let parts = self.storage.parts();
         // The closing event (the `limit`-th) goes through push(): store up to `limit − 1`.
         // The storage holds `capacity` slots and `width` bins (checked at construction). The
@@ -503,17 +508,19 @@ impl<S: RasterStorage> Rasterizer<S> {
         let mut rest = batch;
         while let [e, tail @ ..] = rest {
             if e.x < width && e.y < height {
-                let d = e.t.wrapping_sub(t_first);
-                if (d.wrapping_sub(i64::from(i32::MIN)) as u64) >= span {
+                let u = e.t.wrapping_sub(t_lo) as u64;
+                if u >= span {
                     break; // a time jump or the end of a duration window: push() decides
                 }
-                backwards += u64::from(e.t < t_last);
-                t_last = e.t;
+                // `u < span ≤ 2^32`: the offset `u − 2^31` as i32 flips the top bit.
+                let d = (u as u32 ^ 0x8000_0000) as i32;
+                backwards += usize::from(d < d_last);
+                d_last = d;
                 if let (Some(slot), Some(bin)) = (slots.next(), hist_x.get_mut(usize::from(e.x))) {
                     *slot = u64::from(e.x)
                         | u64::from(e.on) << P_SHIFT
                         | u64::from(e.y) << RB_SHIFT
-                        | u64::from(d as i32 as u32) << 32;
+                        | u64::from(d as u32) << 32;
                     *bin += 1;
                 }
             } // else dropped: counted below
@@ -523,9 +530,9 @@ impl<S: RasterStorage> Rasterizer<S> {
         let len = room_len - slots.len();
         self.stats.accepted += len as u64;
         self.stats.dropped_out_of_range += (used - len) as u64;
-        self.stats.out_of_order += backwards;
+        self.stats.out_of_order += backwards as u64;
         self.disordered |= backwards > 0;
-        (self.len, self.t_last) = (start + len, t_last);
+        (self.len, self.t_last) = (start + len, t_first + i64::from(d_last));
         used
     }
 

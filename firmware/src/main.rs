@@ -113,6 +113,8 @@ enum Error {
     Smooth(StateTooSmall),
     /// The fixed-lag filter refused (its state, or a window's shape).
     Lag(LagError),
+    /// A static buffer was taken twice (`run` takes each once).
+    BuffersTaken,
 }
 
 macro_rules! from {
@@ -252,7 +254,7 @@ fn run(per_tick: u64) -> Result<(), Error> {
         out_x,
         out_y,
         joints,
-    } = BUFFERS.take();
+    } = BUFFERS.try_take().ok_or(Error::BuffersTaken)?;
     // What does not scale with the point count (FC layers, heads, set-up): one inference on
     // one point. An inference's instructions do not depend on the values (no data-dependent
     // branches), so the difference to a window's inference is what its point layers cost.
@@ -273,7 +275,8 @@ fn run(per_tick: u64) -> Result<(), Error> {
         one_point
     );
 
-    let raster = Rasterizer::new(RasterConfig::DAVIS346, RASTER.take())?;
+    let storage = RASTER.try_take().ok_or(Error::BuffersTaken)?;
+    let raster = Rasterizer::new(RasterConfig::DAVIS346, storage)?;
     let mut session = Session::new(raster, Estimator::new(plan, POINTS, SEED));
     let mut ws = Workspace::<I8> {
         indices,

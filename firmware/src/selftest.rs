@@ -43,6 +43,24 @@ impl Rng {
     }
 }
 
+/// `s[..n]` without a panic path: every `n` here is within its array; the `min` lets the
+/// compiler see that.
+fn head<T>(s: &[T], n: usize) -> &[T] {
+    &s[..n.min(s.len())]
+}
+
+/// `&mut s[..n]` without a panic path ([`head`]).
+fn head_mut<T>(s: &mut [T], n: usize) -> &mut [T] {
+    let n = n.min(s.len());
+    &mut s[..n]
+}
+
+/// `&mut s[from..]` without a panic path ([`head`]).
+fn tail_mut<T>(s: &mut [T], from: usize) -> &mut [T] {
+    let from = from.min(s.len());
+    &mut s[from..]
+}
+
 /// Compares `k.matvec_i8` with the reference on every `K` in `0..=70` (every tail of a
 /// four-byte step) by every row count in `1..=9` (pairs and an odd row), random values with the
 /// extremes -128 and 127 mixed in and biases near the i32 limits (sums that wrap; the release
@@ -55,14 +73,16 @@ pub fn kernels(k: &Kernels) -> Report {
     };
     let mut check = |w: &[i8], x: &[i8], bias: &[i32], rows: usize| {
         let (mut got, mut want) = ([0i32; 256], [0i32; 256]);
-        k.matvec_i8(w, x, bias, &mut got[..rows]);
+        k.matvec_i8(w, x, bias, head_mut(&mut got, rows));
         if x.is_empty() {
-            want[..rows].copy_from_slice(&bias[..rows]);
+            for (o, &b) in want.iter_mut().zip(bias).take(rows) {
+                *o = b;
+            }
         } else {
-            reference::matvec_i8(w, x, bias, &mut want[..rows]);
+            reference::matvec_i8(w, x, bias, head_mut(&mut want, rows));
         }
         report.cases += 1;
-        if got[..rows] != want[..rows] {
+        if head(&got, rows) != head(&want, rows) {
             report.mismatches += 1;
         }
     };
@@ -88,7 +108,7 @@ pub fn kernels(k: &Kernels) -> Report {
                     _ => r as i32,
                 }
             });
-            check(&w[..rows * kk], &x[..kk], &bias[..rows], rows);
+            check(head(&w, rows * kk), head(&x, kk), head(&bias, rows), rows);
         }
     }
     // Every product: one row per weight value, K = 5 (a step and a tail), x one value at a time.
@@ -117,10 +137,19 @@ pub fn kernels(k: &Kernels) -> Report {
                     [0x5A5A_5A5Ai32; 6 * MAX_POINTS],
                     [0x5A5A_5A5Ai32; 6 * MAX_POINTS],
                 );
-                let (w, x, bias) = (&w[..rows * kk], &x[..points * kk], &bias[..rows]);
+                let (w, x, bias) = (
+                    head(&w, rows * kk),
+                    head(&x, points * kk),
+                    head(&bias, rows),
+                );
                 k.matmat_i8(w, kk, x, bias, &mut got, stride);
-                for (p, xp) in x.chunks_exact(kk).enumerate() {
-                    reference::matvec_i8(w, xp, bias, &mut want[p * stride..][..rows]);
+                for (p, xp) in x.chunks_exact(kk.max(1)).enumerate() {
+                    reference::matvec_i8(
+                        w,
+                        xp,
+                        bias,
+                        head_mut(tail_mut(&mut want, p * stride), rows),
+                    );
                 }
                 report.cases += 1;
                 if got != want {
@@ -138,8 +167,12 @@ pub fn kernels(k: &Kernels) -> Report {
         sum.iter_mut()
             .for_each(|v| *v = i32::MAX - (rng.next() % 256) as i32);
         let (mut m, mut s) = (max, sum);
-        k.pool_i8(&mut m[..len], &mut s[..len], &y[..len]);
-        reference::pool_i8(&mut max[..len], &mut sum[..len], &y[..len]);
+        k.pool_i8(head_mut(&mut m, len), head_mut(&mut s, len), head(&y, len));
+        reference::pool_i8(
+            head_mut(&mut max, len),
+            head_mut(&mut sum, len),
+            head(&y, len),
+        );
         report.cases += 1;
         if (m, s) != (max, sum) {
             report.mismatches += 1;
@@ -166,10 +199,10 @@ pub fn kernels(k: &Kernels) -> Report {
             w.iter_mut().for_each(|v| *v = half(&mut rng));
             x.iter_mut().for_each(|v| *v = half(&mut rng));
             bias.iter_mut().for_each(|v| *v = rng.next() as i32);
-            let (w, x, bias) = (&w[..rows * kk], &x[..kk], &bias[..rows]);
+            let (w, x, bias) = (head(&w[..], rows * kk), head(&x[..], kk), head(&bias, rows));
             let (mut got, mut want) = ([0i32; MAX_ROWS], [0i32; MAX_ROWS]);
-            k.matvec_i16(w, x, bias, &mut got[..rows]);
-            reference.matvec_i16(w, x, bias, &mut want[..rows]);
+            k.matvec_i16(w, x, bias, head_mut(&mut got, rows));
+            reference.matvec_i16(w, x, bias, head_mut(&mut want, rows));
             report.cases += 1;
             if got != want {
                 report.mismatches += 1;
@@ -184,10 +217,14 @@ pub fn kernels(k: &Kernels) -> Report {
             wa.0.iter_mut().for_each(|v| *v = rng.next() as i16);
             xa.0.iter_mut().for_each(|v| *v = rng.next() as i16);
             let bias = [rng.next() as i32; 6];
-            let (w, x, bias) = (&wa.0[..w_rows * kk], &xa.0[..kk], &bias[..b_len]);
+            let (w, x, bias) = (
+                head(&wa.0, w_rows * kk),
+                head(&xa.0, kk),
+                head(&bias, b_len),
+            );
             let (mut got, mut want) = ([0x5A5A_5A5Ai32; 6], [0x5A5A_5A5Ai32; 6]);
-            k.matvec_i16(w, x, bias, &mut got[..o_len]);
-            reference.matvec_i16(w, x, bias, &mut want[..o_len]);
+            k.matvec_i16(w, x, bias, head_mut(&mut got, o_len));
+            reference.matvec_i16(w, x, bias, head_mut(&mut want, o_len));
             report.cases += 1;
             if got != want {
                 report.mismatches += 1;
@@ -202,8 +239,8 @@ pub fn kernels(k: &Kernels) -> Report {
         for leaky in [None, Some(0.01f32), Some(0.0), Some(1.0), Some(1.5)] {
             let (mut got, mut want) = ([0i8; 64], [0i8; 64]);
             let n = acc.len();
-            k.requantize_i8(acc, scales, leaky, &mut got[..n]);
-            reference.requantize_i8(acc, scales, leaky, &mut want[..n]);
+            k.requantize_i8(acc, scales, leaky, head_mut(&mut got, n));
+            reference.requantize_i8(acc, scales, leaky, head_mut(&mut want, n));
             report.cases += 1;
             if got != want {
                 report.mismatches += 1;
@@ -241,7 +278,7 @@ pub fn kernels(k: &Kernels) -> Report {
             scales
                 .iter_mut()
                 .for_each(|v| *v = f32::from_bits((107 + rng.next() % 24) << 23 | rng.next() >> 9));
-            check_requant(&acc[..len], &scales[..len]);
+            check_requant(head(&acc, len), head(&scales, len));
         }
     }
     report
