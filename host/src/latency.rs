@@ -61,7 +61,8 @@ pub struct Measured {
     /// from its row bin when it is read: the same windows measure 129,200 at N = 256, all of
     /// the 5,280 more counted per sampled point (+20.6), this intercept kept. Re-based at
     /// 9ac3718 on the 117,693 they measure at N = 256 since the selection loop writes through
-    /// an iterator (the slope kept).
+    /// an iterator (the slope kept), and at 7f9ef15 on 135,640: the same code, inlined
+    /// differently after unrelated changes to the image (stage counts move by up to 15 % so).
     pub sample_instructions_per_window: f64,
     /// Sampling, instructions per sampled point.
     pub instructions_per_sampled_point: f64,
