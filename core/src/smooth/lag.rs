@@ -298,23 +298,29 @@ impl<'s> FixedLag<'s> {
         if !ready {
             return None;
         }
-        let segment_of = |m: u64| self.slots.get(self.slot(m)).map(|s| s.segment);
-        let segment = segment_of(k);
+        let segment = self.slots.get(self.slot(k)).map(|s| s.segment);
         // Windows k − lag ..= k + lag that were pushed and are still held (a window older than
-        // `pushed − (2·lag + 1)` has been overwritten), in k's segment.
+        // `pushed − (2·lag + 1)` has been overwritten), in k's segment, oldest first. Their
+        // slots follow each other round the ring: one division for the first (a u64 remainder
+        // is a library call on a 32-bit MCU), then steps.
         let oldest = self.pushed.saturating_sub(self.slots.len() as u64);
         let first = k.saturating_sub(lag).max(oldest);
         let last = (k + lag).min(self.pushed - 1);
+        let first_slot = self.slot(first);
+        let ring = self.slots.len();
         for (j, o) in out.iter_mut().enumerate().take(self.joints) {
             let (mut sx, mut sy, mut sw) = (0f32, 0f32, 0f32);
-            for m in first..=last {
-                if segment_of(m) != segment {
-                    continue;
-                }
-                if let Some(h) = self.held.get(self.slot(m) * self.joints + j) {
+            let mut slot = first_slot;
+            for _ in first..=last {
+                let same = self.slots.get(slot).map(|s| s.segment) == segment;
+                if let (true, Some(h)) = (same, self.held.get(slot * self.joints + j)) {
                     sx += h.weight * h.x;
                     sy += h.weight * h.y;
                     sw += h.weight;
+                }
+                slot += 1;
+                if slot == ring {
+                    slot = 0;
                 }
             }
             *o = [sx / sw, sy / sw];
