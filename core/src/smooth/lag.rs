@@ -70,10 +70,9 @@ impl Default for LagParams {
     }
 }
 
-/// One window held by [`FixedLag`].
+/// One window held by [`FixedLag`]: the segment it belongs to.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct LagSlot {
-    t_us: i64,
     segment: u32,
 }
 
@@ -165,13 +164,8 @@ impl<'s> FixedLag<'s> {
         slots: &'s mut [LagSlot],
         held: &'s mut [Held],
     ) -> Result<Self, LagError> {
+        // A lag no memory holds asks for `usize::MAX` slots, more than any slice has.
         let windows = Self::slots_for(lag);
-        if windows == usize::MAX {
-            return Err(LagError::StateTooSmall {
-                needed: windows,
-                got: slots.len(),
-            });
-        }
         if slots.len() < windows {
             return Err(LagError::StateTooSmall {
                 needed: windows,
@@ -214,11 +208,6 @@ impl<'s> FixedLag<'s> {
         self.lag
     }
 
-    /// Windows pushed so far; [`FixedLag::pop`] numbers windows in this order from 0.
-    pub fn pushed(&self) -> u64 {
-        self.pushed
-    }
-
     fn slot(&self, window: u64) -> usize {
         // The ring holds 2·lag + 1 ≥ 1 windows; the remainder is below that, a usize. (No
         // `%`: its divide-by-zero check would be a panic path in firmware.)
@@ -254,7 +243,7 @@ impl<'s> FixedLag<'s> {
         let segment = self.segment;
         // In range by construction (`new` sized both); `get` keeps panics out of firmware.
         if let Some(s) = self.slots.get_mut(slot) {
-            *s = LagSlot { t_us, segment };
+            *s = LagSlot { segment };
         }
         let row = self
             .held
@@ -298,30 +287,44 @@ impl<'s> FixedLag<'s> {
         if !ready {
             return None;
         }
-        let segment = self.slots.get(self.slot(k)).map(|s| s.segment);
         // Windows k − lag ..= k + lag that were pushed and are still held (a window older than
-        // `pushed − (2·lag + 1)` has been overwritten), in k's segment, oldest first. Their
-        // slots follow each other round the ring: one division for the first (a u64 remainder
-        // is a library call on a 32-bit MCU), then steps.
-        let oldest = self.pushed.saturating_sub(self.slots.len() as u64);
-        let first = k.saturating_sub(lag).max(oldest);
-        let last = (k + lag).min(self.pushed - 1);
-        let first_slot = self.slot(first);
+        // `pushed − (2·lag + 1)` has been overwritten), narrowed to k's segment (segments are
+        // runs of window numbers), summed oldest first. Their slots follow each other round the
+        // ring: one division for k's (a u64 remainder is a library call on a 32-bit MCU), then
+        // steps.
         let ring = self.slots.len();
+        let step = |slot: usize, forward: bool| match (forward, slot.checked_add(1)) {
+            (true, Some(next)) if next < ring => next,
+            (true, _) => 0,
+            (false, _) => slot.checked_sub(1).unwrap_or(ring.saturating_sub(1)),
+        };
+        let segment_at = |slot: usize| self.slots.get(slot).map(|s| s.segment);
+        let k_slot = self.slot(k);
+        let segment = segment_at(k_slot);
+        let oldest = self.pushed.saturating_sub(ring as u64);
+        let (mut first, mut first_slot) = (k, k_slot);
+        while first > oldest && first + lag > k && segment_at(step(first_slot, false)) == segment {
+            first -= 1;
+            first_slot = step(first_slot, false);
+        }
+        let (mut last, mut last_slot) = (k, k_slot);
+        while last + 1 < self.pushed
+            && last < k + lag
+            && segment_at(step(last_slot, true)) == segment
+        {
+            last += 1;
+            last_slot = step(last_slot, true);
+        }
         for (j, o) in out.iter_mut().enumerate().take(self.joints) {
             let (mut sx, mut sy, mut sw) = (0f32, 0f32, 0f32);
             let mut slot = first_slot;
             for _ in first..=last {
-                let same = self.slots.get(slot).map(|s| s.segment) == segment;
-                if let (true, Some(h)) = (same, self.held.get(slot * self.joints + j)) {
+                if let Some(h) = self.held.get(slot * self.joints + j) {
                     sx += h.weight * h.x;
                     sy += h.weight * h.y;
                     sw += h.weight;
                 }
-                slot += 1;
-                if slot == ring {
-                    slot = 0;
-                }
+                slot = step(slot, true);
             }
             *o = [sx / sw, sy / sw];
         }

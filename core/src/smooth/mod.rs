@@ -37,14 +37,6 @@ pub enum Filter {
 impl Filter {
     /// The default: the fixed-lag mean, three windows each side.
     pub const DEFAULT: Self = Self::FixedLag(LagParams::DEFAULT);
-
-    /// Windows a result comes out after its own (0 for the causal filters).
-    pub fn latency_windows(&self) -> usize {
-        match self {
-            Self::FixedLag(p) => p.lag,
-            Self::Off | Self::OneEuro(_) => 0,
-        }
-    }
 }
 
 impl Default for Filter {
