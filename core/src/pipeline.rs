@@ -466,7 +466,8 @@ impl<'m, S: RasterStorage> Session<'m, S> {
     /// per-window loop of every evpose pipeline (host and firmware).
     ///
     /// Always inlined: outlined on the Cortex-M7, the rasterizer's fill loop inside it spilled
-    /// more and cost 140.2 instead of 133.3 instructions per event (QEMU, `firmware_qemu`).
+    /// more and cost 140.2 instead of 133.3 instructions per event (QEMU, `firmware_qemu`,
+    /// measured before the loop moved to i32 offsets).
     #[inline(always)]
     pub fn feed<E: Engine, Err: From<PipelineError>>(
         &mut self,

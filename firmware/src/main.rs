@@ -286,7 +286,8 @@ fn run(per_tick: u64) -> Result<(), Error> {
         y: out_y,
         joints,
     };
-    // The temporal filter over windows (`core::smooth`, the host's defaults): 26 coordinates.
+    // The causal One-Euro filter (`core::smooth::Smoother`, the parameters of `evpose run
+    // --smooth one-euro`): 26 coordinates.
     let mut smooth_state = [AxisState::default(); 2 * JOINTS];
     let mut smoother = Smoother::new(SmoothParams::DEFAULT, &mut smooth_state);
     // The fixed-lag filter (`core::smooth::FixedLag`): lag 1 here, 3 on the host by default.

@@ -32,6 +32,14 @@ pub struct Prediction {
 }
 
 impl Prediction {
+    /// The joints as the core's filters take them (whole model pixels, as decoded).
+    pub fn core_joints(&self) -> [evpose_core::Joint2d; JOINTS] {
+        self.joints.map(|[x, y]| evpose_core::Joint2d {
+            x: x as u16,
+            y: y as u16,
+        })
+    }
+
     /// Decodes the heads `x` (`J × width`) and `y` (`J × height`) with logit `scales`
     /// ([`evpose_core::Model::head_scales`]; `None`: confidence 1 for every joint).
     pub fn from_heads<T: evpose_core::confidence::HeadValue>(
@@ -90,10 +98,7 @@ pub fn smooth(
         let mut f = Smoother::new(params, &mut state);
         for &i in &rows {
             let p = &predictions[i];
-            let joints = p.joints.map(|[x, y]| evpose_core::Joint2d {
-                x: x as u16,
-                y: y as u16,
-            });
+            let joints = p.core_joints();
             f.update(ds.span_us[i][1], &joints, &p.confidence, &mut out[i])
                 .map_err(|e| anyhow::anyhow!("{e}"))?;
         }
@@ -129,10 +134,7 @@ pub fn smooth_fixed_lag(
         };
         for &i in &rows {
             let p = &predictions[i];
-            let joints = p.joints.map(|[x, y]| evpose_core::Joint2d {
-                x: x as u16,
-                y: y as u16,
-            });
+            let joints = p.core_joints();
             f.push(ds.span_us[i][1], &joints, &p.confidence)
                 .map_err(lag_err)?;
             pop(&mut f, &mut out);
@@ -205,7 +207,7 @@ pub struct EvalReport {
     pub samples_per_second: f64,
     /// Mean joint confidence over all samples (`None` for the baseline).
     pub mean_confidence: Option<f64>,
-    /// The same figures after the temporal filter (`evpose eval --smooth`).
+    /// The same figures after the causal One-Euro filter (`evpose eval --smooth`, [`smooth`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub smoothed: Option<Box<EvalReport>>,
     /// The same figures after the fixed-lag filter (`evpose eval --smooth`,

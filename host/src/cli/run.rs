@@ -58,7 +58,6 @@ impl SourceArgs {
             model: self.model.clone(),
             engine: self.engine,
             cameras: self.cameras.clone(),
-            filter: Filter::DEFAULT,
             capacity: DEFAULT_TIME_WINDOW_CAPACITY,
             ..Request::default()
         }

@@ -365,7 +365,6 @@ fn add(acc: &mut (f64, u64), (s, n): (f64, u64)) {
 
 /// One camera's estimate of one window, before the temporal filter.
 struct Estimated {
-    camera: u8,
     raw: Raw,
     /// The network's joints in the sensor's pixels.
     raw_joints: Vec<[f32; 2]>,
@@ -418,7 +417,7 @@ where
                 None => est.raw_joints.clone(),
             };
             poses.push(CameraPose {
-                camera: est.camera,
+                camera: cam.id,
                 events: est.raw.events,
                 points: est.raw.points,
                 joints,
@@ -623,11 +622,7 @@ pub fn run(
                 .iter()
                 .map(|j| cam.rescale.joint([f32::from(j.x), f32::from(j.y)]))
                 .collect();
-            cameras.push(Estimated {
-                camera: cam.id,
-                raw,
-                raw_joints,
-            });
+            cameras.push(Estimated { raw, raw_joints });
         }
         match opts.filter {
             Filter::Off => reporter.window(w, cameras, None),
