@@ -279,14 +279,20 @@ pub fn pipeline(
 ) -> Result<PipelineBench> {
     use crate::run::setup::Plan;
     use rayon::prelude::*;
+    // As `evpose run` without `--render`: the callback takes no events.
+    let resolve = || -> Result<Plan> {
+        let mut plan = Plan::resolve(req)?;
+        plan.options.window_events = false;
+        Ok(plan)
+    };
     let once = || -> Result<(f64, u64, usize)> {
-        let plan = Plan::resolve(req)?;
+        let plan = resolve()?;
         let start = Instant::now();
         let s = plan.run(|_, _, _| Ok(()))?;
         Ok((start.elapsed().as_secs_f64(), s.events, s.windows))
     };
     // The warm-up pass (page cache, allocations) also says what runs.
-    let warm = Plan::resolve(req)?;
+    let warm = resolve()?;
     let (run, cameras) = (warm.description.clone(), warm.options.cameras.len());
     warm.run(|_, _, _| Ok(()))?;
     let mut times = Vec::with_capacity(passes.max(1) as usize);

@@ -150,7 +150,9 @@ pub fn run(a: &RunArgs) -> Result<()> {
         ..a.source.request()
     };
 
-    let plan = Plan::resolve(&req)?;
+    let mut plan = Plan::resolve(&req)?;
+    // Only a rendering draws the events: without it, held windows need no copy of theirs.
+    plan.options.window_events = a.render.is_some();
     let d = plan.description.clone();
     if !a.json {
         eprintln!(

@@ -133,6 +133,11 @@ pub struct RunOptions {
     pub capacity: usize,
     /// The temporal filter.
     pub filter: Filter,
+    /// Whether the callback gets each window's events (to draw them). With the fixed-lag
+    /// filter a window's events are copied while it waits for its later windows; without
+    /// them, every window comes to the callback with an empty event list (its
+    /// [`RunWindow::events`] still counts them).
+    pub window_events: bool,
 }
 
 /// One camera's pose in one window: a line of the output.
@@ -374,8 +379,11 @@ struct Estimated {
 struct Waiting {
     index: usize,
     t_us: (i64, i64),
-    /// Its events, for the callback (the cutter's ring moves on).
+    /// Its events, for the callback (the cutter's ring moves on); empty unless
+    /// [`RunOptions::window_events`].
     events: Vec<windows::Tagged>,
+    /// How many events it had.
+    count: usize,
     cameras: Vec<Estimated>,
 }
 
@@ -395,11 +403,12 @@ impl<F> Reporter<'_, F>
 where
     F: FnMut(&RunWindow, &WindowEvents<'_>, Option<&WindowTruth>) -> Result<()>,
 {
-    /// Reports window `w` from each camera's estimate and, with the filter on, its filtered
+    /// Reports window `w` (`count` events) from each camera's estimate and, with the filter on, its filtered
     /// joints (model pixels, per camera).
     fn window(
         &mut self,
         w: &WindowEvents<'_>,
+        count: usize,
         cameras: Vec<Estimated>,
         filtered: Option<Vec<Vec<[f32; 2]>>>,
     ) -> Result<()> {
@@ -485,7 +494,7 @@ where
         let result = RunWindow {
             window: w.index,
             t_us: [w.t_us.0, w.t_us.1],
-            events: w.len(),
+            events: count,
             no_body,
             view_disagreement_px: disagreement,
             cameras: poses,
@@ -525,7 +534,7 @@ where
                 parts: (&w.events, &[]),
                 t_us: w.t_us,
             };
-            self.window(&events, w.cameras, Some(filtered))?;
+            self.window(&events, w.count, w.cameras, Some(filtered))?;
         }
     }
 }
@@ -544,7 +553,8 @@ fn lag_weights(raw: &Raw) -> std::borrow::Cow<'_, [f32]> {
 /// `estimators` (one per camera of `opts.cameras`, in order), and calls `on_window` with each
 /// window's result, the window's events and, with `truth`, its ground truth. With the
 /// fixed-lag filter, a window is reported once the filter's later windows have been estimated
-/// (its events are held until then), and at the end of the stream the last ones.
+/// (its events, with [`RunOptions::window_events`], are held until then), and at the end of
+/// the stream the last ones.
 pub fn run(
     reader: &mut dyn EventReader,
     estimators: &mut [Box<dyn CameraEstimator + '_>],
@@ -624,8 +634,17 @@ pub fn run(
                 .collect();
             cameras.push(Estimated { raw, raw_joints });
         }
+        // The callback's view of the window: its events, or none (see `window_events`).
+        let shown = if opts.window_events {
+            *w
+        } else {
+            WindowEvents {
+                parts: (&[], &[]),
+                ..*w
+            }
+        };
         match opts.filter {
-            Filter::Off => reporter.window(w, cameras, None),
+            Filter::Off => reporter.window(&shown, w.len(), cameras, None),
             Filter::OneEuro(_) => {
                 let mut filtered = Vec::with_capacity(cameras.len());
                 for (est, smoother) in cameras.iter().zip(euros.iter_mut()) {
@@ -643,7 +662,7 @@ pub fn run(
                     }
                     filtered.push(out);
                 }
-                reporter.window(w, cameras, Some(filtered))
+                reporter.window(&shown, w.len(), cameras, Some(filtered))
             }
             Filter::FixedLag(_) => {
                 for (est, f) in cameras.iter().zip(lagged.iter_mut()) {
@@ -653,7 +672,8 @@ pub fn run(
                 waiting.push_back(Waiting {
                     index: w.index,
                     t_us: w.t_us,
-                    events: w.parts.0.iter().chain(w.parts.1).copied().collect(),
+                    events: shown.parts.0.iter().chain(shown.parts.1).copied().collect(),
+                    count: w.len(),
                     cameras,
                 });
                 reporter.drain(&mut lagged, &mut waiting)
@@ -768,5 +788,32 @@ mod tests {
             NO_BODY_CONFIDENCE + 0.01,
             Some(f64::INFINITY)
         ));
+    }
+
+    /// Without `window_events`, the fixed-lag filter's held windows keep no events and the
+    /// callback gets none, and nothing else about the run changes.
+    #[test]
+    fn window_events_only_change_what_the_callback_sees() {
+        let mut got = Vec::new();
+        for keep in [true, false] {
+            let mut plan = setup::Plan::resolve(&setup::Request::default()).unwrap();
+            assert!(matches!(plan.options.filter, Filter::FixedLag(_)));
+            plan.options.window_events = keep;
+            let mut windows = Vec::new();
+            plan.run(|w, events, _| {
+                windows.push((w.clone(), events.len()));
+                Ok(())
+            })
+            .unwrap();
+            got.push(windows);
+        }
+        let (kept, bare) = (&got[0], &got[1]);
+        assert_eq!(kept.len(), 12, "the bundled clip's windows");
+        for ((w, n), (w_bare, n_bare)) in kept.iter().zip(bare) {
+            assert!(w.events > 0);
+            assert_eq!(*n, w.events, "window {}: its events", w.window);
+            assert_eq!(*n_bare, 0, "window {}: no events", w.window);
+            assert_eq!(w, w_bare, "window {}: the same result", w.window);
+        }
     }
 }
