@@ -480,9 +480,22 @@ fn firmware_lagged(lines: &[String]) -> Lagged {
         .collect()
 }
 
+/// The fixed-lag filter's parameters, from the firmware's `fixed_lag:` line.
+fn firmware_lag(lines: &[String]) -> LagParams {
+    let line = lines
+        .iter()
+        .find_map(|l| l.strip_prefix("fixed_lag: "))
+        .expect("a fixed_lag: line");
+    LagParams {
+        lag: field(line, "lag"),
+        reset_after_us: field(line, "reset_after_us"),
+    }
+}
+
 /// The firmware's pipeline, on the host: the same core session over the same stream, storage,
-/// seed and model blob, with the same digests; and the fixed-lag filter's outputs.
-fn host_windows(events: &[Event], blob: &[u8]) -> (Vec<WindowResult>, Lagged) {
+/// seed and model blob, with the same digests; and the fixed-lag filter's outputs with the
+/// firmware's parameters `lag`.
+fn host_windows(events: &[Event], blob: &[u8], lag: LagParams) -> (Vec<WindowResult>, Lagged) {
     let model = Model::parse(blob).unwrap();
     let (j, w, h) = (model.joints(), model.width(), model.height());
     // The firmware's storage type, on the heap (122 KiB) and borrowed, as the firmware
@@ -508,11 +521,6 @@ fn host_windows(events: &[Event], blob: &[u8]) -> (Vec<WindowResult>, Lagged) {
     let scales = model.head_scales().expect("a version 3 blob");
     let mut smooth_state = vec![AxisState::default(); 2 * j];
     let mut smoother = Smoother::new(SmoothParams::DEFAULT, &mut smooth_state);
-    // The firmware's lag (1; the host's default is 3).
-    let lag = LagParams {
-        lag: 1,
-        ..LagParams::DEFAULT
-    };
     let mut lag_slots = vec![LagSlot::default(); FixedLag::slots_for(lag.lag)];
     let mut lag_held = vec![Held::default(); lag_slots.len() * j];
     let mut lagged = FixedLag::with_params(lag, j, &mut lag_slots, &mut lag_held).unwrap();
@@ -587,7 +595,13 @@ fn firmware_matches_the_host_core_under_qemu() {
 
     let (_, events) = evs::decode(&std::fs::read(event_asset()).unwrap()).unwrap();
     let blob = AlignedBlob::new(&std::fs::read(model_asset()).unwrap());
-    let (host, host_lagged) = host_windows(&events, blob.bytes());
+    // Lag 0 would pass every window through unchanged: a weaker comparison.
+    let lag = firmware_lag(&lines);
+    assert!(
+        lag.lag >= 1,
+        "the firmware's fixed-lag filter averages nothing: {lag:?}"
+    );
+    let (host, host_lagged) = host_windows(&events, blob.bytes(), lag);
     let firmware = firmware_windows(&lines);
     assert_eq!(host.len(), WINDOWS.len());
     assert_eq!(

@@ -303,6 +303,11 @@ fn run(per_tick: u64) -> Result<(), Error> {
     let mut lag_held = [Held::default(); LAG_SLOTS * JOINTS];
     let mut lagged =
         FixedLag::with_params(LAG, JOINTS, &mut lag_slots, &mut lag_held).map_err(Error::Lag)?;
+    // The host test recomputes the filter with these parameters.
+    println!(
+        "fixed_lag: lag={=usize} reset_after_us={=i64}",
+        LAG.lag, LAG.reset_after_us
+    );
     let mut source = EvsReader::new(&EVENTS[..])?;
     let h = *source.header();
     println!(
