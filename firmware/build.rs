@@ -2,8 +2,8 @@
 //!    for a map file next to the ELF (`target/thumbv7em-none-eabihf/<profile>/evpose-firmware.map`).
 //! 2. Sizes the inference buffers from the embedded model at compile time: parses
 //!    `models/mcu.evq` with the same `evpose_core::Model::parse` the firmware runs and writes
-//!    `model_dims.rs` (joints, SimDR width and height, `scratch_words_for_block`, and the point count the
-//!    blob records, 2,048 when it records none) into `OUT_DIR`.
+//!    `model_dims.rs` (joints, SimDR width and height, `scratch_words_for_block`, the point count the
+//!    blob records, 2,048 when it records none, and `widened_words`) into `OUT_DIR`.
 
 use std::path::{Path, PathBuf};
 use std::{env, fs};
@@ -51,12 +51,16 @@ fn model_dims(path: &Path) -> String {
          const SCRATCH_WORDS: usize = {};\n\
          /// Network input points per window: the `N` the blob records (`evpose quantize`\n\
          /// samples the same), 2,048 (the paper's) when it records none.\n\
-         const POINTS: usize = {};\n",
+         const POINTS: usize = {};\n\
+         /// 32-bit words of the embedded model's widened int8 point layers\n\
+         /// (`evpose_core::widened_words`).\n\
+         const WIDENED_WORDS: usize = {};\n",
         path.file_name().unwrap_or_default().to_string_lossy(),
         model.joints(),
         model.width(),
         model.height(),
         evpose_core::scratch_words_for_block(&model, evpose_core::kernels::arm::BLOCK_POINTS),
-        model.input_points()
+        model.input_points(),
+        evpose_core::widened_words(&model)
     )
 }

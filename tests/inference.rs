@@ -264,6 +264,81 @@ fn packed_int8_engine_gives_identical_integers_with_every_kernel_set_and_block()
 }
 
 #[test]
+fn widened_int8_engine_gives_identical_integers_on_every_block() {
+    // The Cortex-M DSP kernel's widened weights, through its portable emulation here (the
+    // instructions themselves run under QEMU in `firmware_qemu`): the small model (point
+    // layers wider than the kernel's 128-input chunk) and the bundled MCU model, every block
+    // size against the row-major engine with the reference kernels.
+    use evpose_core::kernels::Kernels;
+    use evpose_core::{scratch_words_for_block, widen_point_layers, widened_words, Model, Plan};
+    let case = small();
+    let net = model::import_onnx(&case.model).unwrap();
+    let small_blob = int8_blob(&net, &case.inputs[..1]);
+    let mcu_blob = AlignedBlob::new(evpose_host::assets::DEFAULT_MODEL);
+    for (name, blob) in [("small", &small_blob), ("mcu", &mcu_blob)] {
+        let m = Model::parse(blob.bytes()).unwrap();
+        let point_i8: usize = (1..m.point_layer_count())
+            .map(|i| m.layer(i).desc.in_dim as usize / 4 * 4 * m.layer(i).desc.out_dim as usize)
+            .sum();
+        assert_eq!(
+            widened_words(&m),
+            point_i8 / 2,
+            "{name}: two words per four weights"
+        );
+        let mut buf = vec![0u32; widened_words(&m)];
+        let widened = widen_point_layers(&m, &mut buf).unwrap();
+        let input = &case.inputs[4][..300];
+        let (j, w, h) = (m.joints(), m.width(), m.height());
+        let outputs = || (vec![0; j * w], vec![0; j * h]);
+        let (mut wx, mut wy) = outputs();
+        let words = scratch_words_for_block(&m, 1);
+        Plan::new(&m, Kernels::reference(), words)
+            .unwrap()
+            .run_i8(input, &mut vec![0; words], &mut wx, &mut wy)
+            .unwrap();
+        for block in [1, 3, 4, 5, 8, 13, 24] {
+            let (mut x, mut y) = outputs();
+            let mut scratch = vec![0; scratch_words_for_block(&m, block)];
+            let plan = Plan::widened(&m, Kernels::best(), widened, scratch.len()).unwrap();
+            assert!(plan.is_widened() && !plan.is_packed() && plan.block() == block);
+            plan.run_i8(input, &mut scratch, &mut x, &mut y).unwrap();
+            assert_eq!((&x, &y), (&wx, &wy), "{name}, block {block}");
+        }
+    }
+}
+
+#[test]
+fn widened_weights_of_another_model_or_a_short_buffer_are_errors() {
+    use evpose_core::kernels::Kernels;
+    use evpose_core::{scratch_words, widen_point_layers, widened_words, InferError, Model, Plan};
+    let case = small();
+    let net = model::import_onnx(&case.model).unwrap();
+    let blob_of = |i: usize| int8_blob(&net, &case.inputs[i..i + 1]);
+    let (a, b) = (blob_of(0), blob_of(1));
+    let (ma, mb) = (
+        Model::parse(a.bytes()).unwrap(),
+        Model::parse(b.bytes()).unwrap(),
+    );
+    let need = widened_words(&ma);
+    assert!(need > 0);
+    assert_eq!(
+        widen_point_layers(&ma, &mut vec![0; need - 1]).unwrap_err(),
+        InferError::WidenBuffer {
+            needed: need,
+            got: need - 1
+        }
+    );
+    // A longer buffer is fine; the weights of model a do not plan model b.
+    let mut buf = vec![0u32; need + 5];
+    let widened = widen_point_layers(&ma, &mut buf).unwrap();
+    assert!(Plan::widened(&ma, Kernels::best(), widened, scratch_words(&ma)).is_ok());
+    assert_eq!(
+        Plan::widened(&mb, Kernels::best(), widened, scratch_words(&mb)).unwrap_err(),
+        InferError::PackedModel
+    );
+}
+
+#[test]
 fn host_runner_over_row_major_weights_gives_the_packed_runners_integers() {
     // `CoreRunner::row_major`, what `evpose bench infer` times beside the packed engine, runs
     // the same kernel family unpacked and must give the same logits.

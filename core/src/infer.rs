@@ -12,6 +12,7 @@
 
 use core::fmt;
 
+use crate::kernels::arm::{matmat_widened_i8, widen_i8, widened_row_words};
 use crate::kernels::packed::{packed_len_of, Lane, Packed, PackedI16, PackedI8};
 use crate::kernels::Kernels;
 use crate::model::{Bias, DType, Layer, LayerKind, Model, Weights, FEATURES, MAX_POINT_LAYERS};
@@ -40,7 +41,14 @@ pub enum InferError {
         /// Bytes lent.
         got: usize,
     },
-    /// The packed weights were packed from another model.
+    /// Too small a buffer for the widened weights ([`widened_words`]).
+    WidenBuffer {
+        /// Words needed.
+        needed: usize,
+        /// Words lent.
+        got: usize,
+    },
+    /// The packed or widened weights were made from another model.
     PackedModel,
     /// The packed weights are not in the buffer they were packed into.
     PackedBuffer,
@@ -64,7 +72,12 @@ impl fmt::Display for InferError {
             Self::PackBuffer { needed, got } => {
                 write!(f, "packed weights need {needed} bytes, got {got}")
             }
-            Self::PackedModel => write!(f, "the packed weights belong to another model"),
+            Self::WidenBuffer { needed, got } => {
+                write!(f, "widened weights need {needed} words, got {got}")
+            }
+            Self::PackedModel => {
+                write!(f, "the packed or widened weights belong to another model")
+            }
             Self::PackedBuffer => {
                 write!(
                     f,
@@ -216,6 +229,8 @@ pub struct Plan<'m> {
     /// only, so that an image which never plans packed weights (an MCU's) links no packed
     /// kernel.
     packed: Option<(&'m PackedWeights<'m>, PackedLayerFn)>,
+    /// The widened int8 point layers: set by [`Plan::widened`] only.
+    widened: Option<WidenedWeights<'m>>,
     block: usize,
     /// Scratch words `block` needs.
     scratch: usize,
@@ -254,6 +269,31 @@ impl<'m> Plan<'m> {
         // `build`, LLVM's interprocedural constant propagation gave `Plan::new`'s unset payload
         // the same address, and an image that only calls `Plan::new` linked the packed kernels.
         plan.packed = Some((packed, run_packed_layer));
+        Ok(plan)
+    }
+
+    /// [`Plan::new`] for an int8 model whose int8 point layers were widened
+    /// ([`widen_point_layers`]) for the Cortex-M DSP block kernel
+    /// ([`crate::kernels::arm::matmat_widened_i8`]): the same integers, faster where
+    /// [`Kernels::has_widened`]. The widened weights take twice the int8 point layers' bytes
+    /// (for the MCU model 38,400 bytes of RAM): an MCU trades that memory for 13 instead of 15
+    /// instructions per 16 MACs in the block kernel's loop.
+    pub fn widened(
+        model: &'m Model<'m>,
+        kernels: Kernels,
+        widened: WidenedWeights<'m>,
+        scratch_words: usize,
+    ) -> Result<Self, InferError> {
+        if widened.checksum != model.checksum() {
+            return Err(InferError::PackedModel);
+        }
+        for (i, ww) in widened.layers.iter().enumerate() {
+            if ww.len() != widened_len(model, i) {
+                return Err(InferError::PackedModel);
+            }
+        }
+        let mut plan = Self::build(model, kernels, None, scratch_words)?;
+        plan.widened = Some(widened);
         Ok(plan)
     }
 
@@ -309,6 +349,7 @@ impl<'m> Plan<'m> {
             model,
             kernels,
             packed: None,
+            widened: None,
             block,
             scratch: scratch_words_for_block(model, block),
             acts_len,
@@ -339,6 +380,11 @@ impl<'m> Plan<'m> {
     /// Whether the int8 point layers run over packed weights.
     pub fn is_packed(&self) -> bool {
         self.packed.is_some()
+    }
+
+    /// Whether the int8 point layers run over widened weights.
+    pub fn is_widened(&self) -> bool {
+        self.widened.is_some()
     }
 
     /// Length of the x output, `J × W`.
@@ -592,7 +638,12 @@ impl<'m> Plan<'m> {
                             }
                         }
                         let x = gathered.get(..n * k_in).unwrap_or_default();
-                        k.matmat_i8(w, k_in, x, bias, acc, out_dim);
+                        match self.widened.and_then(|ws| ws.layers.get(i).copied()) {
+                            Some(ww) if !ww.is_empty() => {
+                                matmat_widened_i8(ww, w, k_in, x, bias, acc, out_dim);
+                            }
+                            _ => k.matmat_i8(w, k_in, x, bias, acc, out_dim),
+                        }
                     }
                     (Weights::F32(_), None) => return Err(InferError::DType),
                 }
@@ -879,6 +930,87 @@ pub fn pack_point_layers(model: &Model<'_>, buf: &mut [u8]) -> Result<PackedLayo
 /// Packs `w` into the front of `buf`; the packed length.
 fn pack_len<T: Lane>(w: &[T], rows: usize, k: usize, buf: &mut [u8]) -> Option<usize> {
     Packed::pack(w, rows, k, buf).map(|(p, _)| p.byte_len())
+}
+
+/// Widened words of point layer `i` ([`widen_point_layers`]): its rows ×
+/// [`widened_row_words`] for an int8 layer, 0 for any other (the int16 first layer).
+fn widened_len(model: &Model<'_>, i: usize) -> usize {
+    if i >= model.point_layer_count() {
+        return 0;
+    }
+    let l = model.layer(i);
+    match l.weights {
+        Weights::I8(_) => {
+            (l.desc.out_dim as usize).saturating_mul(widened_row_words(l.desc.in_dim as usize))
+        }
+        _ => 0,
+    }
+}
+
+/// 32-bit words of buffer [`widen_point_layers`] needs for `model`'s int8 point layers: two per
+/// four weights (twice their bytes). 0 for an f32 model.
+pub fn widened_words(model: &Model<'_>) -> usize {
+    (0..MAX_POINT_LAYERS)
+        .map(|i| widened_len(model, i))
+        .fold(0usize, usize::saturating_add)
+}
+
+/// A model's int8 point layers widened for the Cortex-M DSP block kernel, ready for
+/// [`Plan::widened`] (from [`widen_point_layers`]). Small and `Copy`: it borrows the buffer.
+#[derive(Clone, Copy, Debug)]
+pub struct WidenedWeights<'b> {
+    /// Each point layer's words (empty: not widened).
+    layers: [&'b [u32]; MAX_POINT_LAYERS],
+    /// The model's blob checksum, to refuse the weights of another model.
+    checksum: u32,
+}
+
+/// Widens `model`'s int8 point layers into `buf` (at least [`widened_words`] long) with
+/// [`widen_i8`]: once, at start-up, what the DSP block kernel would otherwise do to every
+/// weight word for every block of points.
+///
+/// ```
+/// # fn demo(blob: &[u8]) -> Result<(), evpose_core::InferError> {
+/// use evpose_core::{kernels::Kernels, scratch_words, widen_point_layers, widened_words};
+/// use evpose_core::{Model, Plan};
+/// let model = Model::parse(blob).expect("a model");
+/// let mut buf = vec![0u32; widened_words(&model)]; // a `static` on an MCU
+/// let widened = widen_point_layers(&model, &mut buf)?;
+/// let plan = Plan::widened(&model, Kernels::best(), widened, scratch_words(&model))?;
+/// # Ok(()) }
+/// ```
+pub fn widen_point_layers<'b>(
+    model: &Model<'_>,
+    buf: &'b mut [u32],
+) -> Result<WidenedWeights<'b>, InferError> {
+    let (needed, got) = (widened_words(model), buf.len());
+    if got < needed {
+        return Err(InferError::WidenBuffer { needed, got });
+    }
+    let mut layers: [&'b [u32]; MAX_POINT_LAYERS] = [&[]; MAX_POINT_LAYERS];
+    let mut rest = buf;
+    let short = InferError::WidenBuffer { needed, got };
+    for (i, slot) in layers
+        .iter_mut()
+        .enumerate()
+        .take(model.point_layer_count())
+    {
+        let l = model.layer(i);
+        let Weights::I8(w) = l.weights else {
+            continue;
+        };
+        let (mine, tail) = core::mem::take(&mut rest)
+            .split_at_mut_checked(widened_len(model, i))
+            .ok_or(short)?;
+        let (rows, k) = (l.desc.out_dim as usize, l.desc.in_dim as usize);
+        widen_i8(w, rows, k, mine).ok_or(short)?;
+        *slot = mine;
+        rest = tail;
+    }
+    Ok(WidenedWeights {
+        layers,
+        checksum: model.checksum(),
+    })
 }
 
 /// Which kind of layer reads the pooled features (for reports).

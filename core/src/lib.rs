@@ -60,8 +60,8 @@ pub mod smooth;
 
 pub use event::Event;
 pub use infer::{
-    pack_point_layers, packed_bytes, scratch_words, scratch_words_for_block, InferError,
-    PackedLayout, PackedWeights, Plan, Stage,
+    pack_point_layers, packed_bytes, scratch_words, scratch_words_for_block, widen_point_layers,
+    widened_words, InferError, PackedLayout, PackedWeights, Plan, Stage, WidenedWeights,
 };
 pub use model::{DType, Model, ModelError};
 pub use pipeline::{Estimate, Estimator, Session, Workspace};

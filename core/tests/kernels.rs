@@ -420,8 +420,28 @@ fn check_mm(w: &[i8], k: usize, x: &[i8], bias: &[i32], out_len: usize, stride: 
         want,
         "arm::matmat_i8 (emulated), {ctx}"
     );
-    // The written rectangle is the one `matmat_dims` announces.
+    // The widened layout of the Cortex-M DSP kernel, widened from the rows computed; a
+    // widening one word short falls back to the row-major weights.
     let (np, no) = kernels::matmat_dims(k, w.len(), x.len(), bias.len(), out_len, stride);
+    let mut ww = vec![0u32; no * kernels::arm::widened_row_words(k)];
+    assert_eq!(
+        kernels::arm::widen_i8(w, no, k, &mut ww),
+        Some(ww.len()),
+        "{ctx}"
+    );
+    assert_eq!(
+        run(&|o| kernels::arm::matmat_widened_i8(&ww, w, k, x, bias, o, stride)),
+        want,
+        "arm::matmat_widened_i8 (emulated), {ctx}"
+    );
+    if let Some(short) = ww.len().checked_sub(1) {
+        assert_eq!(
+            run(&|o| kernels::arm::matmat_widened_i8(&ww[..short], w, k, x, bias, o, stride)),
+            want,
+            "arm::matmat_widened_i8 (emulated, one word short), {ctx}"
+        );
+    }
+    // The written rectangle is the one `matmat_dims` announces.
     let mut probe = vec![i32::MIN; out_len];
     let marker = vec![i32::MAX; bias.len()];
     kernels::matmat_i8(
@@ -1276,6 +1296,44 @@ fn arm_requantization_matches_reference_on_every_accumulator_in_range() {
             let mut got = vec![0i8; acc.len()];
             kernels::arm::requantize_i8(&acc, &scales, leaky, &mut got);
             assert!(got == want, "scale {scale}, leaky {leaky:?}");
+        }
+    }
+}
+
+/// `widen_i8` writes per row and step of four weights the two words `SXTB16` makes (bytes 0, 2
+/// and 1, 3 as sign-extended halfwords), skips the last `K mod 4` of each row, and refuses
+/// short buffers without writing.
+#[test]
+fn widened_weights_are_the_sxtb16_halfword_pairs() {
+    use kernels::arm::{widen_i8, widened_row_words};
+    let half = |v: i8| u32::from(v as i16 as u16);
+    for k in 0..=13 {
+        let rows = 3;
+        let w: Vec<i8> = (0..rows * k).map(|i| (i as i32 * 37 - 128) as i8).collect();
+        let per = widened_row_words(k);
+        assert_eq!(per, k / 4 * 2);
+        let mut out = vec![0xDEAD_BEEF; rows * per + 2];
+        assert_eq!(widen_i8(&w, rows, k, &mut out), Some(rows * per), "K = {k}");
+        for r in 0..rows {
+            for s in 0..k / 4 {
+                let v = &w[r * k + 4 * s..][..4];
+                assert_eq!(
+                    out[r * per + 2 * s..][..2],
+                    [half(v[0]) | half(v[2]) << 16, half(v[1]) | half(v[3]) << 16],
+                    "K = {k}, row {r}, step {s}"
+                );
+            }
+        }
+        assert_eq!(out[rows * per..], [0xDEAD_BEEF; 2], "K = {k}: past the end");
+        if per > 0 {
+            let mut short = vec![7u32; rows * per - 1];
+            assert_eq!(widen_i8(&w, rows, k, &mut short), None);
+            assert!(short.iter().all(|&v| v == 7), "K = {k}: nothing written");
+            assert_eq!(
+                widen_i8(&w[1..], rows, k, &mut out),
+                None,
+                "K = {k}: w short"
+            );
         }
     }
 }

@@ -9,7 +9,8 @@ use evpose_core::kernels::{self, reference, Kernels};
 const MAX_K: usize = 70;
 const MAX_ROWS: usize = 9;
 
-/// Most points of the matmat cases: two blocks of `BLOCK_POINTS` and a remainder.
+/// Most points of the matmat cases (row-major and widened weights): two blocks of
+/// `BLOCK_POINTS` and a remainder.
 const MAX_POINTS: usize = 2 * kernels::arm::BLOCK_POINTS + 1;
 /// `K` of the matmat cases: below, at and across the blocked kernel's
 /// 128-input chunk, with tails.
@@ -153,6 +154,23 @@ pub fn kernels(k: &Kernels) -> Report {
                 }
                 report.cases += 1;
                 if got != want {
+                    report.mismatches += 1;
+                }
+                // The same over the weights widened (`LDRD` of the halfword pairs).
+                let mut ww = [0u32; MM_MAX_K / 2 * 3];
+                let widened = kernels::arm::widen_i8(w, rows, kk, &mut ww).unwrap_or(0);
+                let mut got = [0x5A5A_5A5Ai32; 6 * MAX_POINTS];
+                kernels::arm::matmat_widened_i8(
+                    head(&ww, widened),
+                    w,
+                    kk,
+                    x,
+                    bias,
+                    &mut got,
+                    stride,
+                );
+                report.cases += 1;
+                if got != want || widened != rows * kernels::arm::widened_row_words(kk) {
                     report.mismatches += 1;
                 }
             }
