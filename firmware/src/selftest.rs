@@ -13,8 +13,8 @@ const MAX_ROWS: usize = 9;
 /// `BLOCK_POINTS` and a remainder.
 const MAX_POINTS: usize = 2 * kernels::arm::BLOCK_POINTS + 1;
 /// `K` of the matmat cases: below, at and across the blocked kernel's
-/// 128-input chunk, with tails.
-const MM_K: [usize; 8] = [1, 4, 7, 16, 127, 128, 131, 260];
+/// 128-input chunk, with tails, and every count of steps of four modulo four.
+const MM_K: [usize; 9] = [1, 4, 7, 10, 16, 127, 128, 131, 260];
 /// The widest of them.
 const MM_MAX_K: usize = 260;
 
