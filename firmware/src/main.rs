@@ -31,7 +31,7 @@ use defmt_semihosting as _;
 
 use evpose_core::kernels::{self, Kernels};
 use evpose_core::model::{DType, ModelError, FEATURES};
-use evpose_core::pipeline::{Estimate, PipelineError, Profiler, Step, I8};
+use evpose_core::pipeline::{Digest, Estimate, PipelineError, Profiler, Step, I8};
 use evpose_core::raster::ConfigError;
 use evpose_core::smooth::{
     AxisState, FixedLag, Held, LagError, LagParams, LagSlot, SmoothParams, Smoother, StateTooSmall,
@@ -268,8 +268,15 @@ fn run(per_tick: u64) -> Result<(), Error> {
     let t = clock::ticks();
     plan.run_i8(&[[0.0; FEATURES]], scratch, out_x, out_y)?;
     let one_point = clock.since(t);
+    // The same inference of a window's points over the row-major weights (`Plan::new`: what a
+    // firmware without the widened weights' RAM runs), for its cost per point.
+    let row_major = Plan::new(&model, Kernels::best(), SCRATCH_WORDS)?;
+    let t = clock::ticks();
+    row_major.run_i8(points.as_slice(), scratch, out_x, out_y)?;
+    let row_major_per_point = clock.since(t).saturating_sub(one_point) / (POINTS as u64 - 1).max(1);
+    let row_major_heads = Digest::heads_i32(out_x, out_y);
     println!(
-        "model: bytes={=usize} layers={=usize} point_layers={=usize} macs_per_point={=u64} macs_after_pooling={=u64} scratch_words={=usize} block={=usize} widened_words={=usize} parse_instructions={=u64} widen_instructions={=u64} plan_instructions={=u64} infer_one_point={=u64}",
+        "model: bytes={=usize} layers={=usize} point_layers={=usize} macs_per_point={=u64} macs_after_pooling={=u64} scratch_words={=usize} block={=usize} widened_words={=usize} parse_instructions={=u64} widen_instructions={=u64} plan_instructions={=u64} infer_one_point={=u64} row_major_per_point={=u64} row_major_per_point_layer_mac={=f32} row_major_crc_heads={=u32:#010x}",
         model.bytes().len(),
         model.layer_count(),
         model.point_layer_count(),
@@ -281,7 +288,10 @@ fn run(per_tick: u64) -> Result<(), Error> {
         parse,
         widen,
         prepare,
-        one_point
+        one_point,
+        row_major_per_point,
+        row_major_per_point as f32 / model.macs_per_point() as f32,
+        row_major_heads
     );
 
     let storage = RASTER.try_take().ok_or(Error::BuffersTaken)?;

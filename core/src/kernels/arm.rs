@@ -475,6 +475,30 @@ impl BlockRows for I8Rows<'_> {
     fn steps(acc: &mut [i32; BLOCK_POINTS], row: &[i8], xu: &[[u32; 2 * BLOCK_POINTS]]) {
         block_steps(acc, row, xu);
     }
+
+    #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
+    #[inline(always)]
+    fn all_rows(
+        &self,
+        k0: usize,
+        full: usize,
+        xu: &[[u32; 2 * BLOCK_POINTS]],
+        bias: &[i32],
+        out: &mut [i32],
+        stride: usize,
+    ) -> bool {
+        let w = self.w.get(k0..).unwrap_or_default();
+        rows_asm::<false>(
+            bytemuck::cast_slice(w),
+            self.k,
+            (full - k0) / 4,
+            xu,
+            bias,
+            out,
+            stride,
+            k0 == 0,
+        )
+    }
 }
 
 /// Widened weights ([`widen_i8`]), rows of `per` words.
@@ -513,9 +537,10 @@ impl BlockRows for WidenedRows<'_> {
         out: &mut [i32],
         stride: usize,
     ) -> bool {
-        widened_rows(
-            self.ww.get(k0 / 2..).unwrap_or_default(),
-            self.per,
+        let ww = self.ww.get(k0 / 2..).unwrap_or_default();
+        rows_asm::<true>(
+            bytemuck::cast_slice(ww),
+            4 * self.per,
             (full - k0) / 4,
             xu,
             bias,
@@ -526,20 +551,24 @@ impl BlockRows for WidenedRows<'_> {
     }
 }
 
-/// Every row of one block and chunk over widened weights in one inline-assembly loop: per row
-/// the accumulators from `bias[r]` (`from_bias`) or from the outputs, `steps` steps of
-/// [`widened_steps`] (four per pass), and the four outputs stored at `out[p·stride + r]`. Rows
-/// are `per` words apart in `ww`. The loop's own state lives in a small array in memory (the
-/// steps need 12 of the 12 registers Rust's inline assembly leaves on Thumb), so a row costs
-/// about 25 instructions besides its steps, against about 45 for the same loop in Rust.
+/// Every row of one block and chunk in one inline-assembly loop: per row the accumulators from
+/// `bias[r]` (`from_bias`) or from the outputs, `steps` steps of four inputs (four per pass; a
+/// count that is not a multiple of four enters the pass at its second, third or fourth step),
+/// and the four outputs stored at `out[p·stride + r]`. Row `r`'s weights for the steps start
+/// `r · row_bytes` bytes into `w`, `step_bytes` per step: one word of four int8 weights
+/// unpacked with two `SXTB16` ([`block_steps`]), or with `WIDE` two widened words loaded with one
+/// `LDRD` ([`widened_steps`]). The loop keeps its own state in a small array in memory (the steps
+/// need all 12 registers Rust's inline assembly leaves on Thumb), so a row costs about 25
+/// instructions besides its steps, against about 45 for the same loop in Rust.
+///
 /// Returns false, doing nothing, where the shapes do not allow it (no steps, no rows, or
 /// buffers too short); the caller then runs the rows in Rust.
 #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
 #[allow(clippy::too_many_arguments)]
 #[inline(never)]
-fn widened_rows(
-    ww: &[u32],
-    per: usize,
+fn rows_asm<const WIDE: bool>(
+    w: &[u8],
+    row_bytes: usize,
     steps: usize,
     xu: &[[u32; 2 * BLOCK_POINTS]],
     bias: &[i32],
@@ -547,41 +576,72 @@ fn widened_rows(
     stride: usize,
     from_bias: bool,
 ) -> bool {
+    let step_bytes = if WIDE { 8 } else { 4 };
     let rows = bias.len();
-    // Bounds of everything the loop touches, in words; all within `u32` (slice lengths of
-    // 4-byte elements on a 32-bit target).
+    // Bounds of everything the loop touches; all within `usize` by the checked arithmetic.
     let fits = steps > 0
         && rows > 0
         && steps <= xu.len()
-        && 2 * steps <= per
+        && step_bytes * steps <= row_bytes
         && (rows - 1)
-            .checked_mul(per)
-            .and_then(|v| v.checked_add(2 * steps))
-            .is_some_and(|v| v <= ww.len())
+            .checked_mul(row_bytes)
+            .and_then(|v| v.checked_add(step_bytes * steps))
+            .is_some_and(|v| v <= w.len())
         && stride
             .checked_mul(BLOCK_POINTS - 1)
             .and_then(|v| v.checked_add(rows))
-            .is_some_and(|v| v <= out.len());
+            .is_some_and(|v| v <= out.len())
+        && (!WIDE || (w.as_ptr() as usize).is_multiple_of(4));
     if !fits {
         return false;
     }
     let out = out.as_mut_ptr();
-    // The loop's state: [xu, step bytes, bytes from a row's end to the next row, output
-    // pointer (row r of point 0), output stride in bytes, bias pointer, output end].
+    // The loop's state: [xu, weight bytes of a row's steps, bytes from there to the next row,
+    // output pointer (row r of point 0), output stride in bytes, bias pointer, output end].
     let mut ctx: [usize; 7] = [
         xu.as_ptr() as usize,
-        8 * steps,
-        4 * (per - 2 * steps),
+        step_bytes * steps,
+        row_bytes - step_bytes * steps,
         out as usize,
         4 * stride,
         bias.as_ptr() as usize,
         out.wrapping_add(rows) as usize,
     ];
-    // One step: as in `widened_steps`.
-    macro_rules! step {
-        () => {
+    // Three steps' and two steps' weight bytes (the pass's entry test).
+    macro_rules! three_steps {
+        (true) => {
+            "24"
+        };
+        (false) => {
+            "12"
+        };
+    }
+    macro_rules! two_steps {
+        (true) => {
+            "16"
+        };
+        (false) => {
+            "8"
+        };
+    }
+    // One step's weights into `u` (inputs 0 and 2) and `t` (inputs 1 and 3).
+    macro_rules! weights {
+        (true) => {
+            "ldrd {u}, {t}, [{pw}], #8\n"
+        };
+        (false) => {
             concat!(
-                "ldrd {u}, {t}, [{pw}], #8\n",
+                "ldr {t}, [{pw}], #4\n",
+                "sxtb16 {u}, {t}\n",
+                "sxtb16 {t}, {t}, ror #8\n",
+            )
+        };
+    }
+    // One step: the weights, then per point its two unpacked input words and two SMLAD.
+    macro_rules! step {
+        ($wide:tt) => {
+            concat!(
+                weights!($wide),
                 "ldrd {xa}, {xb}, [{px}], #8\n",
                 "smlad {a0}, {u}, {xa}, {a0}\n",
                 "smlad {a0}, {t}, {xb}, {a0}\n",
@@ -597,114 +657,109 @@ fn widened_rows(
             )
         };
     }
-    // A row after its accumulators: its steps, four per pass (a count that is not a multiple
-    // of four enters the pass at its second, third or fourth step), then its outputs, the
-    // next row's weights and the loop test.
-    macro_rules! row_rest {
-        () => {
+    // The accumulators of a row: from its bias, or from its outputs.
+    macro_rules! init {
+        (bias) => {
             concat!(
-                "ldr {px}, [{ctx}]\n",
-                "ldr {end}, [{ctx}, #4]\n",
-                "tst {end}, #24\n",
-                "add {end}, {end}, {pw}\n",
-                "bne 9f\n",
-                "4:\n",
-                step!(),
-                "7:\n",
-                step!(),
-                "6:\n",
-                step!(),
-                "8:\n",
-                step!(),
-                "cmp {pw}, {end}\n",
-                "bne 4b\n",
+                "ldr {xa}, [{ctx}, #20]\n",
+                "ldr {a0}, [{xa}], #4\n",
+                "str {xa}, [{ctx}, #20]\n",
+                "mov {a1}, {a0}\n",
+                "mov {a2}, {a0}\n",
+                "mov {a3}, {a0}\n",
+            )
+        };
+        (out) => {
+            concat!(
                 "ldr {xa}, [{ctx}, #12]\n",
                 "ldr {xb}, [{ctx}, #16]\n",
-                "str {a0}, [{xa}]\n",
-                "str {a1}, [{xa}, {xb}]\n",
+                "ldr {a0}, [{xa}]\n",
+                "ldr {a1}, [{xa}, {xb}]\n",
                 "add {t}, {xa}, {xb}, lsl #1\n",
-                "str {a2}, [{t}]\n",
-                "str {a3}, [{t}, {xb}]\n",
-                "add {xa}, {xa}, #4\n",
-                "str {xa}, [{ctx}, #12]\n",
-                "ldr {xb}, [{ctx}, #8]\n",
-                "add {pw}, {pw}, {xb}\n",
-                "ldr {xb}, [{ctx}, #24]\n",
-                "cmp {xa}, {xb}\n",
-                "bne 2b\n",
-                "b 5f\n",
-                // The pass's entry for `steps mod 4` = 1, 2 or 3.
-                "9:\n",
-                "sub {t}, {end}, {pw}\n",
-                "and {t}, {t}, #24\n",
-                "cmp {t}, #16\n",
-                "beq 6b\n",
-                "bhi 7b\n",
-                "b 8b\n",
-                "5:\n",
+                "ldr {a2}, [{t}]\n",
+                "ldr {a3}, [{t}, {xb}]\n",
             )
         };
     }
-    // SAFETY: `fits` bounds every access: for each of the `rows` rows the loop reads `steps`
-    // pairs of words of `ww` from the row's start (`r·per`, `(rows − 1)·per + 2·steps ≤
-    // ww.len()`), `steps` entries of `xu` (`steps ≤ xu.len()`), `bias[r]` when `from_bias`
-    // (`r < rows = bias.len()`), and reads (when not `from_bias`) and writes `out[p·stride + r]`
-    // for `p < 4` (`3·stride + rows ≤ out.len()`); `LDRD` and the word accesses get the 4-byte
-    // alignment of `u32`, `i32` and `usize`. It reads and writes `ctx` (its own state) and
-    // otherwise only registers; it stops after `rows ≥ 1` rows (the output pointer reaches
-    // `out + rows`). SMLAD exists on cores with the DSP extension, which the `arm-dsp`
-    // feature promises (see `sxtb16`).
-    unsafe {
-        if from_bias {
-            core::arch::asm!(
-                "2:",
-                "ldr {xa}, [{ctx}, #20]",
-                "ldr {a0}, [{xa}], #4",
-                "str {xa}, [{ctx}, #20]",
-                "mov {a1}, {a0}",
-                "mov {a2}, {a0}",
-                "mov {a3}, {a0}",
-                row_rest!(),
-                pw = inout(reg) ww.as_ptr() => _,
-                ctx = in(reg) ctx.as_mut_ptr(),
-                px = out(reg) _,
-                end = out(reg) _,
-                t = out(reg) _,
-                u = out(reg) _,
-                xa = out(reg) _,
-                xb = out(reg) _,
-                a0 = out(reg) _,
-                a1 = out(reg) _,
-                a2 = out(reg) _,
-                a3 = out(reg) _,
-                options(nostack),
-            );
-        } else {
-            core::arch::asm!(
-                "2:",
-                "ldr {xa}, [{ctx}, #12]",
-                "ldr {xb}, [{ctx}, #16]",
-                "ldr {a0}, [{xa}]",
-                "ldr {a1}, [{xa}, {xb}]",
-                "add {t}, {xa}, {xb}, lsl #1",
-                "ldr {a2}, [{t}]",
-                "ldr {a3}, [{t}, {xb}]",
-                row_rest!(),
-                pw = inout(reg) ww.as_ptr() => _,
-                ctx = in(reg) ctx.as_mut_ptr(),
-                px = out(reg) _,
-                end = out(reg) _,
-                t = out(reg) _,
-                u = out(reg) _,
-                xa = out(reg) _,
-                xb = out(reg) _,
-                a0 = out(reg) _,
-                a1 = out(reg) _,
-                a2 = out(reg) _,
-                a3 = out(reg) _,
-                options(nostack),
-            );
-        }
+    // The whole loop: per row its accumulators, its steps, its outputs, the next row's
+    // weights and the loop test; after it, the pass's entries for `steps mod 4` = 1, 2, 3.
+    macro_rules! rows {
+        ($init:tt, $wide:tt) => {
+            // SAFETY: `fits` bounds every access: for each of the `rows` rows the loop reads
+            // `steps · step_bytes` bytes of `w` from the row's start (`(rows − 1) · row_bytes +
+            // steps · step_bytes ≤ w.len()`; `LDRD` needs 4-byte alignment, which `fits` checks
+            // for the widened words, `LDR` takes any on Armv7E-M), `steps` entries of `xu`
+            // (`steps ≤ xu.len()`), `bias[r]` when `from_bias` (`r < rows = bias.len()`), and
+            // reads (when not `from_bias`) and writes `out[p·stride + r]` for `p < 4`
+            // (`3·stride + rows ≤ out.len()`), with the alignment of `u32`, `i32` and `usize`.
+            // It reads and writes `ctx` (its own state) and otherwise only registers; it stops
+            // after `rows ≥ 1` rows (the output pointer reaches `out + rows`). SXTB16 and SMLAD
+            // exist on cores with the DSP extension, which the `arm-dsp` feature promises (see
+            // `sxtb16`).
+            unsafe {
+                core::arch::asm!(
+                    "2:",
+                    init!($init),
+                    "ldr {px}, [{ctx}]",
+                    "ldr {end}, [{ctx}, #4]",
+                    concat!("tst {end}, #", three_steps!($wide)),
+                    "add {end}, {end}, {pw}",
+                    "bne 9f",
+                    "4:",
+                    step!($wide),
+                    "7:",
+                    step!($wide),
+                    "6:",
+                    step!($wide),
+                    "8:",
+                    step!($wide),
+                    "cmp {pw}, {end}",
+                    "bne 4b",
+                    "ldr {xa}, [{ctx}, #12]",
+                    "ldr {xb}, [{ctx}, #16]",
+                    "str {a0}, [{xa}]",
+                    "str {a1}, [{xa}, {xb}]",
+                    "add {t}, {xa}, {xb}, lsl #1",
+                    "str {a2}, [{t}]",
+                    "str {a3}, [{t}, {xb}]",
+                    "add {xa}, {xa}, #4",
+                    "str {xa}, [{ctx}, #12]",
+                    "ldr {xb}, [{ctx}, #8]",
+                    "add {pw}, {pw}, {xb}",
+                    "ldr {xb}, [{ctx}, #24]",
+                    "cmp {xa}, {xb}",
+                    "bne 2b",
+                    "b 5f",
+                    "9:",
+                    "sub {t}, {end}, {pw}",
+                    concat!("and {t}, {t}, #", three_steps!($wide)),
+                    concat!("cmp {t}, #", two_steps!($wide)),
+                    "beq 6b",
+                    "bhi 7b",
+                    "b 8b",
+                    "5:",
+                    pw = inout(reg) w.as_ptr() => _,
+                    ctx = in(reg) ctx.as_mut_ptr(),
+                    px = out(reg) _,
+                    end = out(reg) _,
+                    t = out(reg) _,
+                    u = out(reg) _,
+                    xa = out(reg) _,
+                    xb = out(reg) _,
+                    a0 = out(reg) _,
+                    a1 = out(reg) _,
+                    a2 = out(reg) _,
+                    a3 = out(reg) _,
+                    options(nostack),
+                )
+            }
+        };
+    }
+    match (WIDE, from_bias) {
+        (true, true) => rows!(bias, true),
+        (true, false) => rows!(out, true),
+        (false, true) => rows!(bias, false),
+        (false, false) => rows!(out, false),
     }
     true
 }
@@ -852,78 +907,11 @@ fn block_chunk<R: BlockRows>(
 
 /// `acc[p] += Σ w·x` over the steps of four inputs that `ws` (one row) and `xu` (the block's
 /// unpacked inputs) share: per step one weight word, unpacked once, and two `SMLAD` per point.
+/// The DSP build runs whole blocks of rows in [`rows_asm`] instead; this is the portable form
+/// (and the DSP build's for a chunk without whole steps).
 #[inline(always)]
 fn block_steps(acc: &mut [i32; BLOCK_POINTS], row: &[i8], xu: &[[u32; 2 * BLOCK_POINTS]]) {
-    let ws = row.as_chunks::<4>().0;
-    #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
-    {
-        let n = ws.len().min(xu.len());
-        if n == 0 {
-            return;
-        }
-        let [mut a0, mut a1, mut a2, mut a3] = *acc;
-        // One step of four inputs: a weight word unpacked, then per point its two unpacked
-        // input words and two SMLAD.
-        macro_rules! step {
-            () => {
-                concat!(
-                    "ldr {t}, [{pw}], #4\n",
-                    "sxtb16 {u}, {t}\n",
-                    "sxtb16 {t}, {t}, ror #8\n",
-                    "ldrd {xa}, {xb}, [{px}], #8\n",
-                    "smlad {a0}, {u}, {xa}, {a0}\n",
-                    "smlad {a0}, {t}, {xb}, {a0}\n",
-                    "ldrd {xa}, {xb}, [{px}], #8\n",
-                    "smlad {a1}, {u}, {xa}, {a1}\n",
-                    "smlad {a1}, {t}, {xb}, {a1}\n",
-                    "ldrd {xa}, {xb}, [{px}], #8\n",
-                    "smlad {a2}, {u}, {xa}, {a2}\n",
-                    "smlad {a2}, {t}, {xb}, {a2}\n",
-                    "ldrd {xa}, {xb}, [{px}], #8\n",
-                    "smlad {a3}, {u}, {xa}, {a3}\n",
-                    "smlad {a3}, {t}, {xb}, {a3}",
-                )
-            };
-        }
-        // 15 instructions per 16 MACs and the loop's compare and branch per 32: 32 per 32
-        // MACs. LLVM's own schedule of the same steps (the Rust twin below) spent 26 per 16,
-        // with register moves and one load per unpacked word.
-        // SAFETY: the loop reads `n` words from `ws` (`n ≤ ws.len()`, 4 bytes each, `LDR`
-        // takes unaligned addresses on Armv7E-M) and `n` entries of 32 bytes from `xu`
-        // (`n ≤ xu.len()`, `LDRD` needs 4-byte alignment, which `u32` gives), and stops when
-        // the weight pointer reaches `end`; it writes only registers. SXTB16 and SMLAD exist on
-        // cores with the DSP extension, which the `arm-dsp` feature promises (see `sxtb16`).
-        unsafe {
-            core::arch::asm!(
-                // Two steps per pass (the loop branch once per 32 MACs); an odd count
-                // (`end − pw = 4n`) enters at the second.
-                "sub {t}, {end}, {pw}",
-                "tst {t}, #4",
-                "bne 3f",
-                "2:",
-                step!(),
-                "3:",
-                step!(),
-                "cmp {pw}, {end}",
-                "bne 2b",
-                pw = inout(reg) ws.as_ptr() => _,
-                px = inout(reg) xu.as_ptr() => _,
-                end = in(reg) ws.as_ptr().wrapping_add(n),
-                t = out(reg) _,
-                u = out(reg) _,
-                xa = out(reg) _,
-                xb = out(reg) _,
-                a0 = inout(reg) a0,
-                a1 = inout(reg) a1,
-                a2 = inout(reg) a2,
-                a3 = inout(reg) a3,
-                options(nostack, readonly),
-            );
-        }
-        *acc = [a0, a1, a2, a3];
-    }
-    #[cfg(not(all(target_arch = "arm", feature = "arm-dsp")))]
-    for (u, wv) in xu.iter().zip(ws) {
+    for (u, wv) in xu.iter().zip(row.as_chunks::<4>().0) {
         let wd = word(wv);
         let (w02, w13) = (sxtb16(wd), sxtb16_ror8(wd));
         for (p, a) in acc.iter_mut().enumerate() {
@@ -932,74 +920,10 @@ fn block_steps(acc: &mut [i32; BLOCK_POINTS], row: &[i8], xu: &[[u32; 2 * BLOCK_
     }
 }
 
-/// [`block_steps`] over one row's widened words (`ww`, two per step): per step one `LDRD` of
-/// the weights, then per point its two unpacked input words and two `SMLAD`.
+/// [`block_steps`] over one row's widened words (`ww`, two per step: the unpacked weights).
 #[inline(always)]
 fn widened_steps(acc: &mut [i32; BLOCK_POINTS], ww: &[u32], xu: &[[u32; 2 * BLOCK_POINTS]]) {
-    let ws = ww.as_chunks::<2>().0;
-    #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
-    {
-        let n = ws.len().min(xu.len());
-        if n == 0 {
-            return;
-        }
-        let [mut a0, mut a1, mut a2, mut a3] = *acc;
-        macro_rules! step {
-            () => {
-                concat!(
-                    "ldrd {u}, {t}, [{pw}], #8\n",
-                    "ldrd {xa}, {xb}, [{px}], #8\n",
-                    "smlad {a0}, {u}, {xa}, {a0}\n",
-                    "smlad {a0}, {t}, {xb}, {a0}\n",
-                    "ldrd {xa}, {xb}, [{px}], #8\n",
-                    "smlad {a1}, {u}, {xa}, {a1}\n",
-                    "smlad {a1}, {t}, {xb}, {a1}\n",
-                    "ldrd {xa}, {xb}, [{px}], #8\n",
-                    "smlad {a2}, {u}, {xa}, {a2}\n",
-                    "smlad {a2}, {t}, {xb}, {a2}\n",
-                    "ldrd {xa}, {xb}, [{px}], #8\n",
-                    "smlad {a3}, {u}, {xa}, {a3}\n",
-                    "smlad {a3}, {t}, {xb}, {a3}",
-                )
-            };
-        }
-        // 13 instructions per 16 MACs and the loop's compare and branch per 32: 28 per 32
-        // MACs (`block_steps`: 32).
-        // SAFETY: the loop reads `n` pairs of words from `ws` and `n` entries of 32 bytes from
-        // `xu` (`n` is the shorter length; `LDRD` needs the 4-byte alignment that `u32` gives),
-        // and stops when the weight pointer reaches `end`; it writes only registers. SMLAD
-        // exists on cores with the DSP extension, which the `arm-dsp` feature promises (see
-        // `sxtb16`).
-        unsafe {
-            core::arch::asm!(
-                // Two steps per pass; an odd count (`end − pw = 8n`) enters at the second.
-                "sub {t}, {end}, {pw}",
-                "tst {t}, #8",
-                "bne 3f",
-                "2:",
-                step!(),
-                "3:",
-                step!(),
-                "cmp {pw}, {end}",
-                "bne 2b",
-                pw = inout(reg) ws.as_ptr() => _,
-                px = inout(reg) xu.as_ptr() => _,
-                end = in(reg) ws.as_ptr().wrapping_add(n),
-                t = out(reg) _,
-                u = out(reg) _,
-                xa = out(reg) _,
-                xb = out(reg) _,
-                a0 = inout(reg) a0,
-                a1 = inout(reg) a1,
-                a2 = inout(reg) a2,
-                a3 = inout(reg) a3,
-                options(nostack, readonly),
-            );
-        }
-        *acc = [a0, a1, a2, a3];
-    }
-    #[cfg(not(all(target_arch = "arm", feature = "arm-dsp")))]
-    for (u, &[w02, w13]) in xu.iter().zip(ws) {
+    for (u, &[w02, w13]) in xu.iter().zip(ww.as_chunks::<2>().0) {
         for (p, a) in acc.iter_mut().enumerate() {
             *a = smlad(w13, u[2 * p + 1], smlad(w02, u[2 * p], *a));
         }
