@@ -83,6 +83,10 @@ pub struct ModelBudget {
     /// kernels (x86 AVX-512 VNNI, AVX-VNNI) makes at load (`evpose_core::packed_bytes`); 0 for
     /// f32.
     pub packed_bytes: usize,
+    /// Bytes of the widened copy of the int8 point layers' weights that the Cortex-M DSP
+    /// kernel runs fastest with (`evpose_core::widened_words`, 4 bytes each; the firmware
+    /// lends it as a `static` and the MCU latency assumes it); 0 for f32.
+    pub widened_bytes: usize,
 }
 
 /// One section of an ELF image.
@@ -216,6 +220,7 @@ pub fn model_budget(m: &Model<'_>, points: u64) -> ModelBudget {
         output_bytes: 4 * m.joints() * (m.width() + m.height()),
         block_scratch_words: evpose_core::scratch_words_for_block(m, evpose_core::infer::MAX_BLOCK),
         packed_bytes: evpose_core::packed_bytes(m),
+        widened_bytes: 4 * evpose_core::widened_words(m),
     }
 }
 
@@ -629,6 +634,8 @@ mod tests {
             .sum();
         assert!(b.packed_bytes as u64 >= point_i8);
         assert!(b.packed_bytes as u64 <= 2 * point_i8 + 63);
+        // Two bytes per int8 point-layer weight in whole steps of four (all of them here).
+        assert_eq!(b.widened_bytes as u64, 2 * point_i8);
     }
 
     #[test]

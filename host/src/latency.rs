@@ -44,8 +44,12 @@ pub struct Measured {
     pub instructions_per_input_event: f64,
     /// Rasterization, instructions per event (window close included).
     pub instructions_per_event: f64,
-    /// Point layers, instructions per MAC (`per_point / macs_per_point`).
+    /// Point layers, instructions per MAC (`per_point / macs_per_point`), over widened weights
+    /// (`evpose_core::Plan::widened`, what the firmware runs).
     pub instructions_per_point_mac: f64,
+    /// Point layers over the row-major weights (`evpose_core::Plan::new`: no extra RAM),
+    /// instructions per MAC; reported beside the estimate, not used by it.
+    pub instructions_per_point_mac_row_major: f64,
     /// After pooling (FC layers and heads), instructions per MAC.
     pub instructions_per_vector_mac: f64,
     /// Point layers on a core that cannot build the `arm-fpv5` requantization (M4, M33),
@@ -261,6 +265,7 @@ mod tests {
             instructions_per_input_event: 1.0,
             instructions_per_event: 10.0,
             instructions_per_point_mac: 2.0,
+            instructions_per_point_mac_row_major: 2.5,
             instructions_per_vector_mac: 1.0,
             instructions_per_point_mac_without_arm_fpv5: 3.0,
             instructions_per_vector_mac_without_arm_fpv5: 2.0,

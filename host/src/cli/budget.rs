@@ -117,6 +117,13 @@ fn print_model(path: &Path, m: &ModelBudget) {
         evpose_core::infer::MAX_BLOCK,
         m.packed_bytes
     );
+    if m.widened_bytes > 0 {
+        println!(
+            "MCU: widened weights {} bytes (Cortex-M with DSP, `Plan::widened`; the latency \
+             below assumes them, the row-major weights need no extra RAM)",
+            m.widened_bytes
+        );
+    }
     println!(
         "MACs: {} per point x {} points + {} after pooling = {} ({:.3} GMAC)",
         m.macs_per_point,
@@ -130,13 +137,15 @@ fn print_model(path: &Path, m: &ModelBudget) {
 fn print_latency(list: &[Latency], k: &Measured, events: u64, points: u64) {
     println!(
         "\nlatency per {events}-event window at {points} points, from instructions measured \
-         under QEMU (commit {}, model {}: {:.1}/event, {:.3}/point-layer MAC, {:.3}/MAC after \
-         pooling; without the `arm-fpv5` requantization, for the M4 and M33, {:.3} and {:.3}); cycles = \
+         under QEMU (commit {}, model {}: {:.1}/event, {:.3}/point-layer MAC over widened \
+         weights ({:.3} over the row-major ones), {:.3}/MAC after pooling; without the \
+         `arm-fpv5` requantization, for the M4 and M33, {:.3} and {:.3}); cycles = \
          instructions x CPI (assumed):",
         k.commit,
         k.model,
         k.instructions_per_event,
         k.instructions_per_point_mac,
+        k.instructions_per_point_mac_row_major,
         k.instructions_per_vector_mac,
         k.instructions_per_point_mac_without_arm_fpv5,
         k.instructions_per_vector_mac_without_arm_fpv5
