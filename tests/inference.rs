@@ -299,7 +299,7 @@ fn widened_int8_engine_gives_identical_integers_on_every_block() {
         for block in [1, 3, 4, 5, 8, 13, 24] {
             let (mut x, mut y) = outputs();
             let mut scratch = vec![0; scratch_words_for_block(&m, block)];
-            let plan = Plan::widened(&m, Kernels::best(), widened, scratch.len()).unwrap();
+            let plan = Plan::widened(&m, Kernels::best(), &widened, scratch.len()).unwrap();
             assert!(plan.is_widened() && !plan.is_packed() && plan.block() == block);
             plan.run_i8(input, &mut scratch, &mut x, &mut y).unwrap();
             assert_eq!((&x, &y), (&wx, &wy), "{name}, block {block}");
@@ -331,9 +331,9 @@ fn widened_weights_of_another_model_or_a_short_buffer_are_errors() {
     // A longer buffer is fine; the weights of model a do not plan model b.
     let mut buf = vec![0u32; need + 5];
     let widened = widen_point_layers(&ma, &mut buf).unwrap();
-    assert!(Plan::widened(&ma, Kernels::best(), widened, scratch_words(&ma)).is_ok());
+    assert!(Plan::widened(&ma, Kernels::best(), &widened, scratch_words(&ma)).is_ok());
     assert_eq!(
-        Plan::widened(&mb, Kernels::best(), widened, scratch_words(&mb)).unwrap_err(),
+        Plan::widened(&mb, Kernels::best(), &widened, scratch_words(&mb)).unwrap_err(),
         InferError::PackedModel
     );
 }

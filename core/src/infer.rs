@@ -15,6 +15,7 @@ use core::fmt;
 use crate::kernels::arm::{matmat_widened_i8, widen_i8, widened_row_words};
 use crate::kernels::packed::{packed_len_of, Lane, Packed, PackedI16, PackedI8};
 use crate::kernels::Kernels;
+use crate::kernels::MatmatWidenedI8;
 use crate::model::{Bias, DType, Layer, LayerKind, Model, Weights, FEATURES, MAX_POINT_LAYERS};
 use crate::quant::{self, InputCoding, Requant};
 
@@ -229,8 +230,9 @@ pub struct Plan<'m> {
     /// only, so that an image which never plans packed weights (an MCU's) links no packed
     /// kernel.
     packed: Option<(&'m PackedWeights<'m>, PackedLayerFn)>,
-    /// The widened int8 point layers: set by [`Plan::widened`] only.
-    widened: Option<WidenedWeights<'m>>,
+    /// The widened int8 point layers and the kernel that runs them: set by [`Plan::widened`]
+    /// only, so that an image which never plans widened weights links no widened kernel.
+    widened: Option<(&'m WidenedWeights<'m>, MatmatWidenedI8)>,
     block: usize,
     /// Scratch words `block` needs.
     scratch: usize,
@@ -274,14 +276,16 @@ impl<'m> Plan<'m> {
 
     /// [`Plan::new`] for an int8 model whose int8 point layers were widened
     /// ([`widen_point_layers`]) for the Cortex-M DSP block kernel
-    /// ([`crate::kernels::arm::matmat_widened_i8`]): the same integers, faster where
-    /// [`Kernels::has_widened`]. The widened weights take twice the int8 point layers' bytes
-    /// (for the MCU model 38,400 bytes of RAM): an MCU trades that memory for 13 instead of 15
-    /// instructions per 16 MACs in the block kernel's loop.
+    /// ([`crate::kernels::arm::matmat_widened_i8`], which runs them whatever `kernels` says:
+    /// the DSP instructions in an `arm-dsp` build, their emulation elsewhere; `kernels` runs
+    /// everything else): the same integers, faster where [`Kernels::has_widened`]. The widened
+    /// weights take twice the int8 point layers' bytes (for the MCU model 38,400 bytes of RAM):
+    /// an MCU trades that memory for 13 instead of 15 instructions per 16 MACs in the block
+    /// kernel's loop.
     pub fn widened(
         model: &'m Model<'m>,
         kernels: Kernels,
-        widened: WidenedWeights<'m>,
+        widened: &'m WidenedWeights<'m>,
         scratch_words: usize,
     ) -> Result<Self, InferError> {
         if widened.checksum != model.checksum() {
@@ -293,7 +297,9 @@ impl<'m> Plan<'m> {
             }
         }
         let mut plan = Self::build(model, kernels, None, scratch_words)?;
-        plan.widened = Some(widened);
+        // Set here, as `Plan::packed` sets its kernel: an image that never calls
+        // `Plan::widened` then links no widened kernel.
+        plan.widened = Some((widened, matmat_widened_i8));
         Ok(plan)
     }
 
@@ -638,9 +644,12 @@ impl<'m> Plan<'m> {
                             }
                         }
                         let x = gathered.get(..n * k_in).unwrap_or_default();
-                        match self.widened.and_then(|ws| ws.layers.get(i).copied()) {
-                            Some(ww) if !ww.is_empty() => {
-                                matmat_widened_i8(ww, w, k_in, x, bias, acc, out_dim);
+                        let widened = self
+                            .widened
+                            .and_then(|(ws, run)| Some((*ws.layers.get(i)?, run)));
+                        match widened {
+                            Some((ww, run)) if !ww.is_empty() => {
+                                run(ww, w, k_in, x, bias, acc, out_dim);
                             }
                             _ => k.matmat_i8(w, k_in, x, bias, acc, out_dim),
                         }
@@ -976,7 +985,7 @@ pub struct WidenedWeights<'b> {
 /// let model = Model::parse(blob).expect("a model");
 /// let mut buf = vec![0u32; widened_words(&model)]; // a `static` on an MCU
 /// let widened = widen_point_layers(&model, &mut buf)?;
-/// let plan = Plan::widened(&model, Kernels::best(), widened, scratch_words(&model))?;
+/// let plan = Plan::widened(&model, Kernels::best(), &widened, scratch_words(&model))?;
 /// # Ok(()) }
 /// ```
 pub fn widen_point_layers<'b>(

@@ -48,8 +48,9 @@ use crate::input::{EventSource, EvsReader, StreamError};
 const SEED: u64 = 0;
 /// Events read from the source per batch (one DMA half-buffer on a board).
 const BATCH: usize = 256;
-// JOINTS, WIDTH, HEIGHT, SCRATCH_WORDS and POINTS of the embedded model, computed by build.rs
-// with `evpose_core::Model::parse` and `scratch_words_for_block` (and checked again at boot).
+// JOINTS, WIDTH, HEIGHT, SCRATCH_WORDS, POINTS and WIDENED_WORDS of the embedded model,
+// computed by build.rs with `evpose_core::Model::parse`, `scratch_words_for_block` and
+// `widened_words` (and checked again at boot).
 include!(concat!(env!("OUT_DIR"), "/model_dims.rs"));
 
 /// A model blob at a 16-byte-aligned address (`Model::parse` reads its arrays in place).
@@ -251,7 +252,7 @@ fn run(per_tick: u64) -> Result<(), Error> {
     let widened = widen_point_layers(&model, widened)?;
     let widen = clock.since(t);
     let t = clock::ticks();
-    let plan = Plan::widened(&model, Kernels::best(), widened, SCRATCH_WORDS)?;
+    let plan = Plan::widened(&model, Kernels::best(), &widened, SCRATCH_WORDS)?;
     let prepare = clock.since(t);
     let Buffers {
         events,
@@ -268,15 +269,8 @@ fn run(per_tick: u64) -> Result<(), Error> {
     let t = clock::ticks();
     plan.run_i8(&[[0.0; FEATURES]], scratch, out_x, out_y)?;
     let one_point = clock.since(t);
-    // The same inference of a window's points over the row-major weights (`Plan::new`: what a
-    // firmware without the widened weights' RAM runs), for its cost per point.
-    let row_major = Plan::new(&model, Kernels::best(), SCRATCH_WORDS)?;
-    let t = clock::ticks();
-    row_major.run_i8(points.as_slice(), scratch, out_x, out_y)?;
-    let row_major_per_point = clock.since(t).saturating_sub(one_point) / (POINTS as u64 - 1).max(1);
-    let row_major_heads = Digest::heads_i32(out_x, out_y);
     println!(
-        "model: bytes={=usize} layers={=usize} point_layers={=usize} macs_per_point={=u64} macs_after_pooling={=u64} scratch_words={=usize} block={=usize} widened_words={=usize} parse_instructions={=u64} widen_instructions={=u64} plan_instructions={=u64} infer_one_point={=u64} row_major_per_point={=u64} row_major_per_point_layer_mac={=f32} row_major_crc_heads={=u32:#010x}",
+        "model: bytes={=usize} layers={=usize} point_layers={=usize} macs_per_point={=u64} macs_after_pooling={=u64} scratch_words={=usize} block={=usize} widened_words={=usize} parse_instructions={=u64} widen_instructions={=u64} plan_instructions={=u64} infer_one_point={=u64}",
         model.bytes().len(),
         model.layer_count(),
         model.point_layer_count(),
@@ -288,10 +282,7 @@ fn run(per_tick: u64) -> Result<(), Error> {
         parse,
         widen,
         prepare,
-        one_point,
-        row_major_per_point,
-        row_major_per_point as f32 / model.macs_per_point() as f32,
-        row_major_heads
+        one_point
     );
 
     let storage = RASTER.try_take().ok_or(Error::BuffersTaken)?;
@@ -358,6 +349,21 @@ fn run(per_tick: u64) -> Result<(), Error> {
     }
     lagged.finish();
     print_lagged(&mut lagged, &clock);
+    // The last window's input again, over the row-major weights (`Plan::new`: what a firmware
+    // without the widened weights' RAM runs): its cost per point, and its heads' CRC, which
+    // the test compares with the window's.
+    {
+        let row_major = Plan::new(&model, Kernels::best(), SCRATCH_WORDS)?;
+        let t = clock::ticks();
+        row_major.run_i8(ws.rows, ws.scratch, ws.x, ws.y)?;
+        let per_point = clock.since(t).saturating_sub(one_point) / (POINTS as u64 - 1).max(1);
+        println!(
+            "row_major: per_point={=u64} per_point_layer_mac={=f32} crc_heads={=u32:#010x}",
+            per_point,
+            per_point as f32 / model.macs_per_point() as f32,
+            Digest::heads_i32(ws.x, ws.y)
+        );
+    }
     let r = session.rasterizer();
     let s = r.stats();
     println!(

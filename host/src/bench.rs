@@ -282,7 +282,7 @@ pub fn pipeline(
     // As `evpose run` without `--render`: the callback takes no events.
     let resolve = || -> Result<Plan> {
         let mut plan = Plan::resolve(req)?;
-        plan.options.window_events = false;
+        plan.options.callback_events = false;
         Ok(plan)
     };
     let once = || -> Result<(f64, u64, usize)> {

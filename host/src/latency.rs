@@ -53,7 +53,8 @@ pub struct Measured {
     /// After pooling (FC layers and heads), instructions per MAC.
     pub instructions_per_vector_mac: f64,
     /// Point layers on a core that cannot build the `arm-fpv5` requantization (M4, M33),
-    /// instructions per MAC: the same M7 image built with `arm-dsp` alone.
+    /// instructions per MAC: the same M7 image built with `arm-dsp` alone (over widened
+    /// weights, as the M7's figure).
     pub instructions_per_point_mac_without_arm_fpv5: f64,
     /// After pooling on such a core, instructions per MAC.
     pub instructions_per_vector_mac_without_arm_fpv5: f64,
@@ -66,7 +67,8 @@ pub struct Measured {
     /// the 5,280 more counted per sampled point (+20.6), this intercept kept. Re-based at
     /// 9ac3718 on the 117,693 they measure at N = 256 since the selection loop writes through
     /// an iterator (the slope kept), and at 7f9ef15 on 135,640: the same code, inlined
-    /// differently after unrelated changes to the image (stage counts move by up to 15 % so).
+    /// differently after unrelated changes to the image (stage counts move by up to 15 % so),
+    /// and at 3b0810e on 119,480.
     pub sample_instructions_per_window: f64,
     /// Sampling, instructions per sampled point.
     pub instructions_per_sampled_point: f64,

@@ -7,8 +7,11 @@
 //!   rotated by 8: bytes 0, 2 and 1, 3), one word of each row unpacked the same way, and four
 //!   `SMLAD`.
 //! - [`matmat_i8`] computes [`BLOCK_POINTS`] points per weight load (CMSIS-NN's 1×1
-//!   convolution does two): the block's inputs are unpacked once, and each row runs over them
+//!   convolution does two): the block's inputs are unpacked once, and all rows run over them
 //!   in one inline-assembly loop (`LDR`, two `SXTB16`, four `LDRD`, eight `SMLAD` per 16 MACs).
+//! - [`matmat_widened_i8`] does the same over weights [`widen_i8`] unpacked once at start-up
+//!   (`LDRD` of two halfword-pair words instead of `LDR` and two `SXTB16`: 13 instructions per
+//!   16 MACs), for twice the int8 weights' memory.
 //! - [`pool_i8`] takes the maxima of four channels at once with `SSUB8` and `SEL`.
 //! - [`matvec_i16`] runs `SMLAD` on the stored i16 weights and inputs (the 15-bit SimDR heads
 //!   and the first layer), two rows at a time: an inline-assembly `LDRD` loop for word-aligned
@@ -561,8 +564,8 @@ impl BlockRows for WidenedRows<'_> {
 /// need all 12 registers Rust's inline assembly leaves on Thumb), so a row costs about 25
 /// instructions besides its steps, against about 45 for the same loop in Rust.
 ///
-/// Returns false, doing nothing, where the shapes do not allow it (no steps, no rows, or
-/// buffers too short); the caller then runs the rows in Rust.
+/// Returns false, doing nothing, where the shapes do not allow it (no steps, no rows, buffers
+/// too short, or widened words not on a 4-byte boundary); the caller then runs the rows in Rust.
 #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
 #[allow(clippy::too_many_arguments)]
 #[inline(never)]
@@ -688,8 +691,10 @@ fn rows_asm<const WIDE: bool>(
             // SAFETY: `fits` bounds every access: for each of the `rows` rows the loop reads
             // `steps · step_bytes` bytes of `w` from the row's start (`(rows − 1) · row_bytes +
             // steps · step_bytes ≤ w.len()`; `LDRD` needs 4-byte alignment, which `fits` checks
-            // for the widened words, `LDR` takes any on Armv7E-M), `steps` entries of `xu`
-            // (`steps ≤ xu.len()`), `bias[r]` when `from_bias` (`r < rows = bias.len()`), and
+            // for the widened words; `LDR` takes any on Armv7E-M while CCR.UNALIGN_TRP is clear,
+            // as it is out of reset, and as the row-major kernels before this one assumed),
+            // `steps` entries of `xu` (`steps ≤ xu.len()`), `bias[r]` when `from_bias`
+            // (`r < rows = bias.len()`), and
             // reads (when not `from_bias`) and writes `out[p·stride + r]` for `p < 4`
             // (`3·stride + rows ≤ out.len()`), with the alignment of `u32`, `i32` and `usize`.
             // It reads and writes `ctx` (its own state) and otherwise only registers; it stops

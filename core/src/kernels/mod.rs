@@ -110,6 +110,10 @@ pub type MatvecI16 = fn(&[i16], &[i16], &[i32], &mut [i32]);
 /// the rule above.
 pub type MatmatI8 = fn(&[i8], usize, &[i8], &[i32], &mut [i32], usize);
 
+/// The widened int8 block kernel signature: `(ww, w, k, x, bias, out, out_stride)`, see
+/// [`arm::matmat_widened_i8`].
+pub type MatmatWidenedI8 = fn(&[u32], &[i8], usize, &[i8], &[i32], &mut [i32], usize);
+
 /// The requantization kernel signature: `(acc, scales, leaky, out)`, see
 /// [`reference::requantize_i8`].
 pub type RequantizeI8 = fn(&[i32], &[f32], Option<f32>, &mut [i8]);

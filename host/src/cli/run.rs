@@ -152,7 +152,7 @@ pub fn run(a: &RunArgs) -> Result<()> {
 
     let mut plan = Plan::resolve(&req)?;
     // Only a rendering draws the events: without it, held windows need no copy of theirs.
-    plan.options.window_events = a.render.is_some();
+    plan.options.callback_events = a.render.is_some();
     let d = plan.description.clone();
     if !a.json {
         eprintln!(

@@ -137,7 +137,7 @@ pub struct RunOptions {
     /// filter a window's events are copied while it waits for its later windows; without
     /// them, every window comes to the callback with an empty event list (its
     /// [`RunWindow::events`] still counts them).
-    pub window_events: bool,
+    pub callback_events: bool,
 }
 
 /// One camera's pose in one window: a line of the output.
@@ -380,7 +380,7 @@ struct Waiting {
     index: usize,
     t_us: (i64, i64),
     /// Its events, for the callback (the cutter's ring moves on); empty unless
-    /// [`RunOptions::window_events`].
+    /// [`RunOptions::callback_events`].
     events: Vec<windows::Tagged>,
     /// How many events it had.
     count: usize,
@@ -403,8 +403,8 @@ impl<F> Reporter<'_, F>
 where
     F: FnMut(&RunWindow, &WindowEvents<'_>, Option<&WindowTruth>) -> Result<()>,
 {
-    /// Reports window `w` (`count` events) from each camera's estimate and, with the filter on, its filtered
-    /// joints (model pixels, per camera).
+    /// Reports window `w` (`count` events) from each camera's estimate and, with the filter on,
+    /// its filtered joints (model pixels, per camera).
     fn window(
         &mut self,
         w: &WindowEvents<'_>,
@@ -553,7 +553,7 @@ fn lag_weights(raw: &Raw) -> std::borrow::Cow<'_, [f32]> {
 /// `estimators` (one per camera of `opts.cameras`, in order), and calls `on_window` with each
 /// window's result, the window's events and, with `truth`, its ground truth. With the
 /// fixed-lag filter, a window is reported once the filter's later windows have been estimated
-/// (its events, with [`RunOptions::window_events`], are held until then), and at the end of
+/// (its events, with [`RunOptions::callback_events`], are held until then), and at the end of
 /// the stream the last ones.
 pub fn run(
     reader: &mut dyn EventReader,
@@ -634,8 +634,8 @@ pub fn run(
                 .collect();
             cameras.push(Estimated { raw, raw_joints });
         }
-        // The callback's view of the window: its events, or none (see `window_events`).
-        let shown = if opts.window_events {
+        // The callback's view of the window: its events, or none (see `callback_events`).
+        let shown = if opts.callback_events {
             *w
         } else {
             WindowEvents {
@@ -790,15 +790,15 @@ mod tests {
         ));
     }
 
-    /// Without `window_events`, the fixed-lag filter's held windows keep no events and the
+    /// Without `callback_events`, the fixed-lag filter's held windows keep no events and the
     /// callback gets none, and nothing else about the run changes.
     #[test]
-    fn window_events_only_change_what_the_callback_sees() {
+    fn callback_events_only_change_what_the_callback_sees() {
         let mut got = Vec::new();
         for keep in [true, false] {
             let mut plan = setup::Plan::resolve(&setup::Request::default()).unwrap();
             assert!(matches!(plan.options.filter, Filter::FixedLag(_)));
-            plan.options.window_events = keep;
+            plan.options.callback_events = keep;
             let mut windows = Vec::new();
             plan.run(|w, events, _| {
                 windows.push((w.clone(), events.len()));

@@ -285,7 +285,7 @@ impl Plan {
                 rule,
                 capacity,
                 filter: req.filter,
-                window_events: true,
+                callback_events: true,
             },
             truth,
             description: Description {
