@@ -48,7 +48,7 @@ pub struct Measured {
     /// (`evpose_core::Plan::widened`, what the firmware runs).
     pub instructions_per_point_mac: f64,
     /// Point layers over the row-major weights (`evpose_core::Plan::new`: no extra RAM),
-    /// instructions per MAC; reported beside the estimate, not used by it.
+    /// instructions per MAC ([`Weights::RowMajor`]).
     pub instructions_per_point_mac_row_major: f64,
     /// After pooling (FC layers and heads), instructions per MAC.
     pub instructions_per_vector_mac: f64,
@@ -58,6 +58,8 @@ pub struct Measured {
     pub instructions_per_point_mac_without_arm_fpv5: f64,
     /// After pooling on such a core, instructions per MAC.
     pub instructions_per_vector_mac_without_arm_fpv5: f64,
+    /// Point layers over the row-major weights on such a core, instructions per MAC.
+    pub instructions_per_point_mac_row_major_without_arm_fpv5: f64,
     /// Sampling, instructions per window whatever `N` (drawing from the window's `M` points,
     /// M ≈ 2,900): fitted, with the per-point figure, through two firmware runs on the same
     /// windows, 113,680 instructions at N = 256 (this model) and 209,360 at N = 2,048 (the
@@ -160,11 +162,26 @@ impl std::fmt::Display for Target {
     }
 }
 
+/// The point layers' weights an estimate assumes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Weights {
+    /// Widened once at start-up (`evpose_core::Plan::widened`, what the firmware runs): the
+    /// fastest, for twice the int8 point layers' weight bytes in RAM.
+    #[default]
+    Widened,
+    /// The blob's row-major int8 weights, read in place (`evpose_core::Plan::new`): no RAM
+    /// beyond the scratch.
+    RowMajor,
+}
+
 /// One window's estimated cost on a target.
 #[derive(Clone, Debug, Serialize, PartialEq)]
 pub struct Latency {
     /// The target.
     pub target: String,
+    /// The point layers' weights assumed.
+    pub weights: Weights,
     /// Cycles per instruction assumed.
     pub cpi: f64,
     /// Instructions per window, by stage: reading the input.
@@ -190,15 +207,25 @@ pub struct Latency {
 }
 
 /// The cost of one window of `window_events` events through the model of `m` (at `m.points`
-/// points) on `target`, from the per-unit costs `k`.
-pub fn estimate(m: &ModelBudget, window_events: u64, k: &Measured, target: Target) -> Latency {
-    let (point_mac, vector_mac) = if target.core.fpv5_kernels() {
-        (k.instructions_per_point_mac, k.instructions_per_vector_mac)
+/// points) on `target` with the point layers over `weights`, from the per-unit costs `k`.
+pub fn estimate(
+    m: &ModelBudget,
+    window_events: u64,
+    k: &Measured,
+    target: Target,
+    weights: Weights,
+) -> Latency {
+    let fpv5 = target.core.fpv5_kernels();
+    let point_mac = match (fpv5, weights) {
+        (true, Weights::Widened) => k.instructions_per_point_mac,
+        (true, Weights::RowMajor) => k.instructions_per_point_mac_row_major,
+        (false, Weights::Widened) => k.instructions_per_point_mac_without_arm_fpv5,
+        (false, Weights::RowMajor) => k.instructions_per_point_mac_row_major_without_arm_fpv5,
+    };
+    let vector_mac = if fpv5 {
+        k.instructions_per_vector_mac
     } else {
-        (
-            k.instructions_per_point_mac_without_arm_fpv5,
-            k.instructions_per_vector_mac_without_arm_fpv5,
-        )
+        k.instructions_per_vector_mac_without_arm_fpv5
     };
     let per_point = point_mac * m.macs_per_point as f64 + k.instructions_per_sampled_point;
     let bins = (m.joints * (m.width + m.height)) as f64;
@@ -220,6 +247,7 @@ pub fn estimate(m: &ModelBudget, window_events: u64, k: &Measured, target: Targe
     };
     Latency {
         target: target.to_string(),
+        weights,
         cpi: target.core.cpi(),
         input,
         rasterize,
@@ -268,6 +296,7 @@ mod tests {
             instructions_per_event: 10.0,
             instructions_per_point_mac: 2.0,
             instructions_per_point_mac_row_major: 2.5,
+            instructions_per_point_mac_row_major_without_arm_fpv5: 3.5,
             instructions_per_vector_mac: 1.0,
             instructions_per_point_mac_without_arm_fpv5: 3.0,
             instructions_per_vector_mac_without_arm_fpv5: 2.0,
@@ -280,7 +309,7 @@ mod tests {
         let model = evpose_core::Model::parse(blob.bytes()).unwrap();
         let m = crate::budget::model_budget(&model, 256);
         let t: Target = "cortex-m7@480".parse().unwrap();
-        let l = estimate(&m, 7500, &k, t);
+        let l = estimate(&m, 7500, &k, t, Weights::Widened);
         let bins = (m.joints * (m.width + m.height)) as f64;
         let want = 7500.0 * 11.0
             + 50.0
@@ -298,14 +327,34 @@ mod tests {
         assert!((l.ms - want / 480e3).abs() < 1e-9);
         // The M4 runs the point layers and the layers after pooling without the FPv5
         // requantization: their per-MAC costs without it.
-        let m4 = estimate(&m, 7500, &k, "cortex-m4@240".parse().unwrap());
+        let m4 = estimate(
+            &m,
+            7500,
+            &k,
+            "cortex-m4@240".parse().unwrap(),
+            Weights::Widened,
+        );
         let want4 = want + (m.macs_per_point * 256) as f64 + m.macs_after_pooling as f64;
         assert!((m4.ms - want4 * 1.25 / 240e3).abs() < 1e-9);
+        // Over row-major weights the point layers take their own per-MAC costs, with and
+        // without the FPv5 requantization; nothing else changes.
+        let point = (m.macs_per_point * 256) as f64;
+        let rm = estimate(&m, 7500, &k, t, Weights::RowMajor);
+        assert!((rm.instructions - (want + 0.5 * point)).abs() < 1e-6);
+        assert_eq!(rm.weights, Weights::RowMajor);
+        let rm4 = estimate(
+            &m,
+            7500,
+            &k,
+            "cortex-m4@240".parse().unwrap(),
+            Weights::RowMajor,
+        );
+        assert!((rm4.ms - (want4 + 0.5 * point) * 1.25 / 240e3).abs() < 1e-9);
         // At the largest real-time count the window fits in 36 ms; one point more does not.
         let at = |n: u64| {
             let mut mb = m.clone();
             mb.points = n;
-            estimate(&mb, 7500, &k, t).ms
+            estimate(&mb, 7500, &k, t, Weights::Widened).ms
         };
         let n = l.max_real_time_points;
         assert!(

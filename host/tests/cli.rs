@@ -594,7 +594,22 @@ fn budget_estimates_latency_per_target() {
         let ms = t["ms"].as_f64().unwrap();
         assert_eq!(t["real_time"], ms <= 36.0);
         assert!(t["instructions"].as_f64().unwrap() > t["infer"].as_f64().unwrap());
+        assert_eq!(t["weights"], "widened");
     }
+    // The widened weights' RAM is reported; the row-major plan needs none and runs slower.
+    assert_eq!(v["model"]["widened_bytes"], 38_400);
+    let r = json(&[
+        "budget",
+        "--model",
+        s(&model),
+        "--weights",
+        "row-major",
+        "--json",
+    ]);
+    let rm = &r["latency"][0];
+    assert_eq!(rm["weights"], "row-major");
+    assert!(rm["infer"].as_f64().unwrap() > l[0]["infer"].as_f64().unwrap());
+    assert_eq!(rm["rasterize"], l[0]["rasterize"]);
     assert!(evpose_err(&[
         "budget",
         "--model",

@@ -7,7 +7,7 @@ use clap::Args;
 use evpose_core::model::Model;
 
 use crate::budget::{default_elf, image_budget, model_budget, Budget, ImageBudget, ModelBudget};
-use crate::latency::{self, Latency, Measured, Target, REAL_TIME_MS};
+use crate::latency::{self, Latency, Measured, Target, Weights, REAL_TIME_MS};
 use crate::model;
 
 /// Arguments of `evpose budget`.
@@ -28,6 +28,10 @@ pub struct BudgetArgs {
     /// under QEMU (`firmware/measured.json`) and a stated cycles-per-instruction assumption.
     #[arg(long, num_args = 1.., default_value = "cortex-m7@480")]
     pub target: Vec<Target>,
+    /// The point layers' weights the latency assumes: `widened` (what the firmware runs,
+    /// twice the int8 point layers' bytes in RAM) or `row-major` (no extra RAM).
+    #[arg(long, value_enum, default_value_t = Weights::Widened)]
+    pub weights: Weights,
     /// Events per window, for the rasterization cost.
     #[arg(long, default_value_t = u64::from(evpose_core::raster::DEFAULT_WINDOW_EVENTS))]
     pub window_events: u64,
@@ -51,7 +55,7 @@ pub fn budget(a: &BudgetArgs) -> Result<()> {
     let latency = a
         .target
         .iter()
-        .map(|&t| latency::estimate(&mb, a.window_events, &measured, t))
+        .map(|&t| latency::estimate(&mb, a.window_events, &measured, t, a.weights))
         .collect();
     let b = Budget {
         model: mb,
@@ -62,7 +66,12 @@ pub fn budget(a: &BudgetArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&b)?);
     } else {
         print_model(&a.model, &b.model);
-        print_latency(&b.latency, &measured, a.window_events, b.model.points);
+        print_latency(
+            &b.latency,
+            &measured,
+            (a.window_events, b.model.points),
+            (a.weights, b.model.widened_bytes),
+        );
         match &b.image {
             Some(i) => print_image(i),
             None => println!(
@@ -134,20 +143,35 @@ fn print_model(path: &Path, m: &ModelBudget) {
     );
 }
 
-fn print_latency(list: &[Latency], k: &Measured, events: u64, points: u64) {
+fn print_latency(
+    list: &[Latency],
+    k: &Measured,
+    (events, points): (u64, u64),
+    (weights, widened_bytes): (Weights, usize),
+) {
+    let (point, point_m4, over) = match weights {
+        Weights::Widened => (
+            k.instructions_per_point_mac,
+            k.instructions_per_point_mac_without_arm_fpv5,
+            format!("widened weights ({widened_bytes} bytes of RAM; --weights row-major: none)"),
+        ),
+        Weights::RowMajor => (
+            k.instructions_per_point_mac_row_major,
+            k.instructions_per_point_mac_row_major_without_arm_fpv5,
+            "the row-major weights (no extra RAM; --weights widened: faster)".to_string(),
+        ),
+    };
     println!(
-        "\nlatency per {events}-event window at {points} points, from instructions measured \
-         under QEMU (commit {}, model {}: {:.1}/event, {:.3}/point-layer MAC over widened \
-         weights ({:.3} over the row-major ones), {:.3}/MAC after pooling; without the \
-         `arm-fpv5` requantization, for the M4 and M33, {:.3} and {:.3}); cycles = \
-         instructions x CPI (assumed):",
+        "\nlatency per {events}-event window at {points} points, point layers over {over}, from \
+         instructions measured under QEMU (commit {}, model {}: {:.1}/event, {:.3}/point-layer \
+         MAC, {:.3}/MAC after pooling; without the `arm-fpv5` requantization, for the M4 and \
+         M33, {:.3} and {:.3}); cycles = instructions x CPI (assumed):",
         k.commit,
         k.model,
         k.instructions_per_event,
-        k.instructions_per_point_mac,
-        k.instructions_per_point_mac_row_major,
+        point,
         k.instructions_per_vector_mac,
-        k.instructions_per_point_mac_without_arm_fpv5,
+        point_m4,
         k.instructions_per_vector_mac_without_arm_fpv5
     );
     println!(
