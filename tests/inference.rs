@@ -307,14 +307,20 @@ fn widened_int8_engine_gives_identical_integers_on_every_block() {
     }
 }
 
+/// The small model quantized with two calibrations: two int8 blobs of one shape whose
+/// checksums differ.
+fn two_small_blobs() -> (AlignedBlob, AlignedBlob) {
+    let case = small();
+    let net = model::import_onnx(&case.model).unwrap();
+    let blob_of = |i: usize| int8_blob(&net, &case.inputs[i..i + 1]);
+    (blob_of(0), blob_of(1))
+}
+
 #[test]
 fn widened_weights_of_another_model_or_a_short_buffer_are_errors() {
     use evpose_core::kernels::Kernels;
     use evpose_core::{scratch_words, widen_point_layers, widened_words, InferError, Model, Plan};
-    let case = small();
-    let net = model::import_onnx(&case.model).unwrap();
-    let blob_of = |i: usize| int8_blob(&net, &case.inputs[i..i + 1]);
-    let (a, b) = (blob_of(0), blob_of(1));
+    let (a, b) = two_small_blobs();
     let (ma, mb) = (
         Model::parse(a.bytes()).unwrap(),
         Model::parse(b.bytes()).unwrap(),
@@ -364,10 +370,7 @@ fn host_runner_over_row_major_weights_gives_the_packed_runners_integers() {
 fn packed_weights_of_another_model_or_in_another_buffer_are_errors() {
     use evpose_core::kernels::Kernels;
     use evpose_core::{pack_point_layers, packed_bytes, scratch_words, InferError, Model, Plan};
-    let case = small();
-    let net = model::import_onnx(&case.model).unwrap();
-    let blob_of = |i: usize| int8_blob(&net, &case.inputs[i..i + 1]);
-    let (a, b) = (blob_of(0), blob_of(1));
+    let (a, b) = two_small_blobs();
     let (ma, mb) = (
         Model::parse(a.bytes()).unwrap(),
         Model::parse(b.bytes()).unwrap(),
@@ -402,6 +405,7 @@ fn packed_weights_of_another_model_or_in_another_buffer_are_errors() {
     let packed = layout.weights(&ma, &buf).unwrap();
     let (mut x, mut y) = (vec![0; 13 * 346], vec![0; 13 * 260]);
     let mut scratch = vec![0; scratch_words(&mb)];
+    let case = small();
     let input = &case.inputs[0][..10];
     let k = Kernels::detect();
     assert_eq!(

@@ -436,7 +436,11 @@ trait BlockRows: Copy {
     fn row(&self, r: usize, k0: usize, full: usize) -> Self::Row<'_>;
     /// `acc[p] += Σ w·x` over those steps and the block's unpacked inputs `xu`.
     fn steps(acc: &mut [i32; BLOCK_POINTS], row: Self::Row<'_>, xu: &[[u32; 2 * BLOCK_POINTS]]);
-    /// Every row's steps `k0..full` at once, if this source has a loop for it: point `p`'s
+    /// What [`rows_asm`] reads: the weights from input `k0` of row 0 on, as bytes; the bytes
+    /// from one row to the next; whether they are widened.
+    #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
+    fn asm_weights(&self, k0: usize) -> (&[u8], usize, bool);
+    /// Every row's steps `k0..full` at once in [`rows_asm`] (the DSP build): point `p`'s
     /// output of row `r` at `out[p·stride + r]`, starting from `bias[r]` when `k0 = 0`, else
     /// from that output. Returns whether it ran (else the caller runs [`BlockRows::steps`]
     /// row by row).
@@ -450,8 +454,23 @@ trait BlockRows: Copy {
         out: &mut [i32],
         stride: usize,
     ) -> bool {
-        let _ = (k0, full, xu, bias, out, stride);
-        false
+        #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
+        {
+            let (w, row_bytes, wide) = self.asm_weights(k0);
+            let steps = (full - k0) / 4;
+            // `wide` is a constant of the implementation: one monomorphized loop each.
+            let run = if wide {
+                rows_asm::<true>
+            } else {
+                rows_asm::<false>
+            };
+            run(w, row_bytes, steps, xu, bias, out, stride, k0 == 0)
+        }
+        #[cfg(not(all(target_arch = "arm", feature = "arm-dsp")))]
+        {
+            let _ = (k0, full, xu, bias, out, stride);
+            false
+        }
     }
 }
 
@@ -481,26 +500,9 @@ impl BlockRows for I8Rows<'_> {
 
     #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
     #[inline(always)]
-    fn all_rows(
-        &self,
-        k0: usize,
-        full: usize,
-        xu: &[[u32; 2 * BLOCK_POINTS]],
-        bias: &[i32],
-        out: &mut [i32],
-        stride: usize,
-    ) -> bool {
+    fn asm_weights(&self, k0: usize) -> (&[u8], usize, bool) {
         let w = self.w.get(k0..).unwrap_or_default();
-        rows_asm::<false>(
-            bytemuck::cast_slice(w),
-            self.k,
-            (full - k0) / 4,
-            xu,
-            bias,
-            out,
-            stride,
-            k0 == 0,
-        )
+        (bytemuck::cast_slice(w), self.k, false)
     }
 }
 
@@ -531,26 +533,10 @@ impl BlockRows for WidenedRows<'_> {
 
     #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
     #[inline(always)]
-    fn all_rows(
-        &self,
-        k0: usize,
-        full: usize,
-        xu: &[[u32; 2 * BLOCK_POINTS]],
-        bias: &[i32],
-        out: &mut [i32],
-        stride: usize,
-    ) -> bool {
+    fn asm_weights(&self, k0: usize) -> (&[u8], usize, bool) {
+        // Two words per step of four inputs: input `k0` starts word `k0/2`.
         let ww = self.ww.get(k0 / 2..).unwrap_or_default();
-        rows_asm::<true>(
-            bytemuck::cast_slice(ww),
-            4 * self.per,
-            (full - k0) / 4,
-            xu,
-            bias,
-            out,
-            stride,
-            k0 == 0,
-        )
+        (bytemuck::cast_slice(ww), 4 * self.per, true)
     }
 }
 
