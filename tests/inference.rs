@@ -313,7 +313,9 @@ fn two_small_blobs() -> (AlignedBlob, AlignedBlob) {
     let case = small();
     let net = model::import_onnx(&case.model).unwrap();
     let blob_of = |i: usize| int8_blob(&net, &case.inputs[i..i + 1]);
-    (blob_of(0), blob_of(1))
+    let (a, b) = (blob_of(0), blob_of(1));
+    assert_ne!(a.bytes(), b.bytes(), "two calibrations, two blobs");
+    (a, b)
 }
 
 #[test]

@@ -85,7 +85,7 @@ pub struct ModelBudget {
     pub packed_bytes: usize,
     /// Bytes of the widened copy of the int8 point layers' weights that the Cortex-M DSP
     /// kernel runs fastest with (`evpose_core::widened_words`, 4 bytes each; the firmware
-    /// lends it as a `static` and the MCU latency assumes it); 0 for f32.
+    /// lends it as a `static` and the MCU latency assumes it by default); 0 for f32.
     pub widened_bytes: usize,
 }
 

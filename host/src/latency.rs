@@ -70,7 +70,7 @@ pub struct Measured {
     /// 9ac3718 on the 117,693 they measure at N = 256 since the selection loop writes through
     /// an iterator (the slope kept), and at 7f9ef15 on 135,640: the same code, inlined
     /// differently after unrelated changes to the image (stage counts move by up to 15 % so),
-    /// and at 49667e0 on 115,040.
+    /// at 3b0810e on 119,480, and at 49667e0 on 115,040.
     pub sample_instructions_per_window: f64,
     /// Sampling, instructions per sampled point.
     pub instructions_per_sampled_point: f64,

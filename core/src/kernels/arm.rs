@@ -870,7 +870,7 @@ fn block_chunk<R: BlockRows>(
     let rows = bias.iter().enumerate();
     // Two copies of the row loop, so that neither tests the chunk per row.
     if done {
-        // Every row ran in the source's own loop.
+        // Every row ran in `rows_asm`.
     } else if k0 == 0 {
         for ((r, &b), ((y0, y1), (y2, y3))) in rows.zip(ys!()) {
             let mut acc = [b; BLOCK_POINTS];

@@ -129,7 +129,7 @@ fn print_model(path: &Path, m: &ModelBudget) {
     if m.widened_bytes > 0 {
         println!(
             "MCU: widened weights {} bytes (Cortex-M with DSP, `Plan::widened`; the latency \
-             below assumes them, the row-major weights need no extra RAM)",
+             below assumes them unless --weights row-major, which needs no extra RAM)",
             m.widened_bytes
         );
     }
@@ -153,7 +153,11 @@ fn print_latency(
         Weights::Widened => (
             k.instructions_per_point_mac,
             k.instructions_per_point_mac_without_arm_fpv5,
-            format!("widened weights ({widened_bytes} bytes of RAM; --weights row-major: none)"),
+            if widened_bytes > 0 {
+                format!("widened weights ({widened_bytes} bytes of RAM; --weights row-major: none)")
+            } else {
+                "widened weights (none in this model)".to_string()
+            },
         ),
         Weights::RowMajor => (
             k.instructions_per_point_mac_row_major,
