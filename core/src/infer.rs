@@ -278,7 +278,8 @@ impl<'m> Plan<'m> {
     /// ([`widen_point_layers`]) for the Cortex-M DSP block kernel
     /// ([`crate::kernels::arm::matmat_widened_i8`], which runs them whatever `kernels` says:
     /// the DSP instructions in an `arm-dsp` build, their emulation elsewhere; `kernels` runs
-    /// everything else): the same integers, faster where [`Kernels::has_widened`]. The widened
+    /// everything else): the same integers, faster on the Cortex-M DSP build (elsewhere the
+    /// emulation is slower than the kernel table's own kernels). The widened
     /// weights take twice the int8 point layers' bytes (for the MCU model 38,400 bytes of RAM):
     /// an MCU trades that memory for 13 instead of 15 instructions per 16 MACs in the block
     /// kernel's loop.

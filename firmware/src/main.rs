@@ -92,7 +92,8 @@ impl Buffers {
 static RASTER: ConstStaticCell<Davis346Storage> = ConstStaticCell::new(Davis346Storage::new());
 static BUFFERS: ConstStaticCell<Buffers> = ConstStaticCell::new(Buffers::new());
 /// The model's int8 point layers widened for the DSP block kernel (`widen_point_layers`):
-/// 38,400 bytes of RAM that save two `SXTB16` per four weights and block of points.
+/// twice their int8 bytes of RAM (38,400 for the bundled model), which save two `SXTB16` per
+/// four weights and block of points.
 static WIDENED: ConstStaticCell<[u32; WIDENED_WORDS]> = ConstStaticCell::new([0; WIDENED_WORDS]);
 
 /// Why the pipeline stopped.

@@ -405,8 +405,8 @@ pub fn widen_i8(w: &[i8], rows: usize, k: usize, out: &mut [u32]) -> Option<usiz
 /// [`matmat_i8`] over weights also given widened (`ww`, from [`widen_i8`] of the same `w`,
 /// `rows` and `k`): the inner step for four inputs of one row and four points loads the two
 /// widened weight words with one `LDRD` instead of unpacking a weight word with two `SXTB16`
-/// (13 instructions per 16 MACs instead of 15). The same integers as [`matmat_i8`]; a `ww`
-/// shorter than the rows computed needs runs [`matmat_i8`] instead. Widened weights take twice
+/// (13 instructions per 16 MACs instead of 15). The same integers as [`matmat_i8`]; with a
+/// `ww` shorter than the rows computed need, it runs [`matmat_i8`] instead. Widened weights take twice
 /// the memory of the int8 ones: a firmware trades RAM for this speed.
 pub fn matmat_widened_i8(
     ww: &[u32],
@@ -904,20 +904,24 @@ fn block_chunk<R: BlockRows>(
 fn block_steps(acc: &mut [i32; BLOCK_POINTS], row: &[i8], xu: &[[u32; 2 * BLOCK_POINTS]]) {
     for (u, wv) in xu.iter().zip(row.as_chunks::<4>().0) {
         let wd = word(wv);
-        let (w02, w13) = (sxtb16(wd), sxtb16_ror8(wd));
-        for (p, a) in acc.iter_mut().enumerate() {
-            *a = smlad(w13, u[2 * p + 1], smlad(w02, u[2 * p], *a));
-        }
+        step_points(acc, [sxtb16(wd), sxtb16_ror8(wd)], u);
     }
 }
 
 /// [`block_steps`] over one row's widened words (`ww`, two per step: the unpacked weights).
 #[inline(always)]
 fn widened_steps(acc: &mut [i32; BLOCK_POINTS], ww: &[u32], xu: &[[u32; 2 * BLOCK_POINTS]]) {
-    for (u, &[w02, w13]) in xu.iter().zip(ww.as_chunks::<2>().0) {
-        for (p, a) in acc.iter_mut().enumerate() {
-            *a = smlad(w13, u[2 * p + 1], smlad(w02, u[2 * p], *a));
-        }
+    for (u, &w) in xu.iter().zip(ww.as_chunks::<2>().0) {
+        step_points(acc, w, u);
+    }
+}
+
+/// One step of four inputs for every point of a block: the step's unpacked weights `[w02, w13]`
+/// against each point's two unpacked input words in `u`, two `SMLAD` per point.
+#[inline(always)]
+fn step_points(acc: &mut [i32; BLOCK_POINTS], [w02, w13]: [u32; 2], u: &[u32; 2 * BLOCK_POINTS]) {
+    for (p, a) in acc.iter_mut().enumerate() {
+        *a = smlad(w13, u[2 * p + 1], smlad(w02, u[2 * p], *a));
     }
 }
 

@@ -416,15 +416,6 @@ impl Kernels {
         false
     }
 
-    /// Whether [widened](arm::widen_i8) int8 weights ([`crate::infer::Plan::widened`]) pay on
-    /// this table: its block kernel unpacks every weight word with `SXTB16` per block of points,
-    /// which widening does once (the Cortex-M DSP table). On any other table a widened plan
-    /// gives the same integers through the DSP kernel's portable emulation, slower than the
-    /// table's own kernels.
-    pub fn has_widened(&self) -> bool {
-        self.isa == Isa::ArmDsp
-    }
-
     /// The native packed kernels of this table's ISA. Chosen from the ISA at the call, not
     /// stored in the table, so that only an image that runs packed weights links them.
     fn packed_kernels(&self) -> Option<(MatmatPackedI8, MatmatPackedI16)> {
