@@ -63,17 +63,17 @@ pub const DEFAULT_WINDOW_EVENTS: u32 = 7_500;
 /// The normalization factor of the reference code: keeps the last event inside slice `K - 1`.
 const SPAN_FACTOR: f64 = 1.001;
 
-// Layout of a buffered event word (before close):   x:11 | p:1 | y:10 | (zero):10 | t_off:32 (i32)
-// Layout of a sorted word (after the slice pass):   x:11 | p:1 | row bin k·H + y:13 | (zero):7 | f32 bits:32
-// Layout of a point, word A:                        x:11 | (zero):1 | row bin k·H + y:13 | (zero):7 | cnt:32
+// Layout of a buffered event word (before close):   x:11 | (zero):4 | p:1 | y:10 | (zero):6 | t_off + 2^31:32 (u32)
+// Layout of a sorted word (after the slice pass):   x:11 | (zero):4 | p:1 | row bin k·H + y:13 | (zero):3 | f32 bits:32
+// Layout of a point, word A:                        x:11 | (zero):5 | row bin k·H + y:13 | (zero):3 | cnt:32
 // Layout of a point, word B:                        f_acc f32 bits:32 | p_acc i32:32
 //
 // The row bin sits where the row was: a sorted word's low half is its buffered word's plus
 // `k·H << RB_SHIFT`, and its bin is that half shifted down (bins stay below
 // `MAX_SLICES · MAX_HEIGHT = 8,192`: 13 bits).
 const X_MASK: u64 = (1 << 11) - 1;
-const P_SHIFT: u32 = 11;
-const RB_SHIFT: u32 = 12;
+const P_SHIFT: u32 = 15;
+const RB_SHIFT: u32 = 16;
 const RB_MASK: u64 = (1 << 13) - 1;
 
 /// When a window closes.
@@ -458,11 +458,11 @@ impl<S: RasterStorage> Rasterizer<S> {
     /// already has its first event, stopping before any event that would close the window.
     ///
     /// Written for few live values (`scripts/callgrind-raster.sh`): the buffer and the
-    /// histogram are sliced to their bounds first, the loop runs over at most as many events
-    /// as the window has room for (so it needs no room test), drops are counted from the
-    /// consumed count afterwards, the time test is one unsigned compare, and the window's
-    /// time range is not tracked per event: an in-order window's range is its first and last
-    /// offsets, and the close finds an out-of-order window's range itself.
+    /// histogram are sliced to their bounds first, the loop ([`Run::store`]) runs over at most
+    /// as many events as the window has room for (so it needs no room test), drops are
+    /// counted from the consumed count afterwards, the time test is one unsigned compare, and
+    /// the window's time range is not tracked per event: an in-order window's range is its
+    /// first and last offsets, and the close finds an out-of-order window's range itself.
     fn fill(&mut self, events: &[Event]) -> usize {
         let limit = match self.config.window {
             WindowRule::Events(n) => (n as usize).min(self.capacity),
@@ -482,10 +482,12 @@ impl<S: RasterStorage> Rasterizer<S> {
             return 0;
         }
         let start = self.len;
-        // In the loop, times are offsets from `t_first` in i32 (fewer live registers on a
-        // 32-bit MCU), starting from the last stored event's: with `len > 0` that event is in
-        // this window (`insert` and this loop store only offsets that fit), so it fits.
-        let mut d_last = i32::try_from(self.t_last.wrapping_sub(t_first)).unwrap_or(i32::MIN);
+        // In the loop, times are offsets from `t_first` plus 2^31 in u32 (fewer live registers
+        // on a 32-bit MCU, and they are what the words store), starting from the last stored
+        // event's: with `len > 0` that event is in this window (`insert` and this loop store
+        // only offsets that fit in i32), so it fits.
+        let d_last = i32::try_from(self.t_last.wrapping_sub(t_first)).unwrap_or(i32::MIN);
+        let mut u_last = d_last as u32 ^ 0x8000_0000;
         // `e.t − t_lo` is `d − i32::MIN` for `d = e.t − t_first`, wrapping the same way.
         let t_lo = t_first.wrapping_add(i64::from(i32::MIN));
         let mut backwards = 0usize;
@@ -493,8 +495,7 @@ impl<S: RasterStorage> Rasterizer<S> {
         // The closing event (the `limit`-th) goes through push(): store up to `limit − 1`.
         // The storage holds `capacity` slots and `width` bins (checked at construction). The
         // check lets the compiler drop the slicing's panic paths (firmware); were the storage
-        // short, `push` would take every event. (`get_mut` with `let … else` costs 1 more
-        // instruction per event on x86, in the loop's code generation.)
+        // short, `push` would take every event.
         let end = limit.saturating_sub(1).max(start);
         if end > parts.a.len() || usize::from(width) > parts.hist_x.len() {
             return 0;
@@ -504,35 +505,31 @@ impl<S: RasterStorage> Rasterizer<S> {
         // Each event takes at most one slot: `room.len()` events cannot overflow it.
         let room_len = room.len();
         let batch = &events[..events.len().min(room_len)];
-        let mut slots = room.iter_mut();
-        let mut rest = batch;
-        while let [e, tail @ ..] = rest {
-            if e.x < width && e.y < height {
-                let u = e.t.wrapping_sub(t_lo) as u64;
-                if u >= span {
-                    break; // a time jump or the end of a duration window: push() decides
-                }
-                // `u < span ≤ 2^32`: the offset `u − 2^31` as i32 flips the top bit.
-                let d = (u as u32 ^ 0x8000_0000) as i32;
-                backwards += usize::from(d < d_last);
-                d_last = d;
-                if let (Some(slot), Some(bin)) = (slots.next(), hist_x.get_mut(usize::from(e.x))) {
-                    *slot = u64::from(e.x)
-                        | u64::from(e.on) << P_SHIFT
-                        | u64::from(e.y) << RB_SHIFT
-                        | u64::from(d as u32) << 32;
-                    *bin += 1;
-                }
-            } // else dropped: counted below
-            rest = tail;
+        let run = Run {
+            rows_end: u32::from(height) << RB_SHIFT,
+            t_lo,
+            span,
+        };
+        // Runs of accepted events, each stored slot by slot; a dropped event (rare: a pixel
+        // outside the sensor) ends a run and is skipped, a time jump ends the loop.
+        let (mut used, mut len) = (0, 0);
+        while let (Some(rest), Some(slots)) = (batch.get(used..), room.get_mut(len..)) {
+            let stored = run.store(rest, slots, hist_x, &mut u_last, &mut backwards);
+            used += stored;
+            len += stored;
+            match rest.get(stored) {
+                Some(e) if !(usize::from(e.x) < hist_x.len() && e.y < height) => used += 1,
+                _ => break, // the batch's end, or an event for `push` to decide
+            }
         }
-        let used = batch.len() - rest.len();
-        let len = room_len - slots.len();
         self.stats.accepted += len as u64;
         self.stats.dropped_out_of_range += (used - len) as u64;
         self.stats.out_of_order += backwards as u64;
         self.disordered |= backwards > 0;
-        (self.len, self.t_last) = (start + len, t_first + i64::from(d_last));
+        (self.len, self.t_last) = (
+            start + len,
+            t_first + i64::from((u_last ^ 0x8000_0000) as i32),
+        );
         used
     }
 
@@ -623,17 +620,18 @@ impl<S: RasterStorage> Rasterizer<S> {
         }
         self.t_last = event.t;
         // In range: checked above against t_first, or 0 for the first event.
-        let off = (event.t - self.t_first) as i32;
+        let u = (event.t - self.t_first) as i32 as u32 ^ 0x8000_0000;
         let parts = self.storage.parts();
         // `len < capacity` (a full window closes) and `x < width` (checked by `push`).
         if let (Some(slot), Some(bin)) = (
             parts.a.get_mut(self.len),
             parts.hist_x.get_mut(usize::from(event.x)),
         ) {
-            *slot = u64::from(event.x)
-                | u64::from(event.on) << P_SHIFT
-                | u64::from(event.y) << RB_SHIFT
-                | u64::from(off as u32) << 32;
+            *slot = buffered_word(
+                u32::from(event.x) | u32::from(event.y) << RB_SHIFT,
+                event.on,
+                u,
+            );
             *bin += 1;
         }
         self.len += 1;
@@ -717,6 +715,63 @@ fn check_config(
     Ok(())
 }
 
+/// The per-event tests of [`Rasterizer::fill`]'s loop.
+#[derive(Clone, Copy)]
+struct Run {
+    /// `H << 16`: an event's `x | y << 16` lies below it exactly when `y < H`.
+    rows_end: u32,
+    /// `t_first + i32::MIN`: `t − t_lo` is the offset from `t_first` plus 2^31.
+    t_lo: i64,
+    /// Offsets plus 2^31 the window takes lie below this (at most 2^32).
+    span: u64,
+}
+
+impl Run {
+    /// Stores events in order into `slots` while they are accepted (pixel on the sensor,
+    /// offset inside the window); returns how many. One index walks both slices, and the
+    /// column histogram (sliced to the sensor's width) bounds the column test, so no other
+    /// bounds test is left in the loop. Not inlined: on its own the loop keeps every value in
+    /// a register (`scripts/callgrind-raster.sh`).
+    #[inline(never)]
+    fn store(
+        self,
+        events: &[Event],
+        slots: &mut [u64],
+        hist_x: &mut [u32],
+        u_last: &mut u32,
+        backwards: &mut usize,
+    ) -> usize {
+        let (mut last, mut back) = (*u_last, *backwards);
+        let mut stored = 0;
+        for (slot, e) in slots.iter_mut().zip(events) {
+            let Some(bin) = hist_x.get_mut(usize::from(e.x)) else {
+                break;
+            };
+            let xy = u32::from(e.x) | u32::from(e.y) << RB_SHIFT;
+            let u = e.t.wrapping_sub(self.t_lo) as u64;
+            if xy >= self.rows_end || u >= self.span {
+                break;
+            }
+            // `u < span ≤ 2^32`.
+            let u = u as u32;
+            back += usize::from(u < last);
+            last = u;
+            *slot = buffered_word(xy, e.on, u);
+            *bin += 1;
+            stored += 1;
+        }
+        (*u_last, *backwards) = (last, back);
+        stored
+    }
+}
+
+/// A buffered event word: `x | y << 16` (column and row, checked against the sensor), the
+/// polarity and `u`, the time offset from the window's first event plus 2^31.
+#[inline(always)]
+fn buffered_word(xy: u32, on: bool, u: u32) -> u64 {
+    u64::from(xy | u32::from(on) << P_SHIFT) | u64::from(u) << 32
+}
+
 /// The smallest and largest time offsets of buffered event words.
 fn offset_range(words: &[u64]) -> (i32, i32) {
     words.iter().fold((i32::MAX, i32::MIN), |(lo, hi), &w| {
@@ -781,23 +836,30 @@ fn rasterize(
         }));
     }
     exclusive_prefix_sum(hist_rows);
-    for &w in sorted.iter() {
+    scatter_rows(sorted, hist_rows, events);
+    merge_cells(p.a, p.b, n)
+}
+
+/// The second counting-sort pass: words sorted by column, scattered stably by their
+/// `(slice, row)` bin (`starts`: the bins' exclusive prefix sums) into `out`.
+#[inline(never)]
+fn scatter_rows(sorted: &[u64], starts: &mut [u32], out: &mut [u64]) {
+    for &w in sorted {
         let key = (w as u32 >> RB_SHIFT) as usize;
-        if let Some(start) = hist_rows.get_mut(key) {
+        if let Some(start) = starts.get_mut(key) {
             let at = *start as usize;
             *start += 1;
-            if let Some(slot) = events.get_mut(at) {
+            if let Some(slot) = out.get_mut(at) {
                 *slot = w;
             }
         }
     }
-    merge_cells(p.a, p.b, n)
 }
 
-/// A buffered word's time offset.
+/// A buffered word's time offset from the window's first event.
 #[inline(always)]
 fn offset(w: u64) -> i32 {
-    (w >> 32) as u32 as i32
+    ((w >> 32) as u32 ^ 0x8000_0000) as i32
 }
 
 /// The reference's slice arithmetic for one window's offsets.
@@ -864,6 +926,7 @@ impl ColumnScatter<'_> {
     /// Scatters the events of one slice `k` (a run of an in-order window). Fractions are
     /// computed a chunk at a time first: that loop has no stores but its own, and the compiler
     /// vectorizes it.
+    #[inline(never)]
     fn run_slice(&mut self, events: &[u64], k: u32, slices: Slices) {
         const CHUNK: usize = 64;
         let mut fracs = [0f32; CHUNK];
@@ -909,6 +972,7 @@ fn exclusive_prefix_sum(bins: &mut [u32]) {
 ///
 /// Point `j` is written only after event `j` has been read (there are never more points than
 /// events read so far), so the merge runs in place.
+#[inline(never)]
 fn merge_cells(a: &mut [u64], b: &mut [u64], n: usize) -> usize {
     const CELL_MASK: u64 = X_MASK | RB_MASK << RB_SHIFT;
     let Some(&first) = a.first() else {
