@@ -830,10 +830,10 @@ fn rasterize(
             rest = tail;
         }
     } else {
-        scatter.run(events.iter().map(|&w| {
+        for &w in events.iter() {
             let (k, frac) = slices.slice_and_fraction(offset(w));
-            (w, k, frac)
-        }));
+            scatter.scatter(sorted_word(w, u64::from(k) * scatter.slice_step, frac));
+        }
     }
     exclusive_prefix_sum(hist_rows);
     scatter_rows(sorted, hist_rows, events);
@@ -923,40 +923,45 @@ struct ColumnScatter<'a> {
 }
 
 impl ColumnScatter<'_> {
-    /// Scatters the events of one slice `k` (a run of an in-order window). Fractions are
-    /// computed a chunk at a time first: that loop has no stores but its own, and the compiler
-    /// vectorizes it.
+    /// Scatters the events of one slice `k` (a run of an in-order window). Sorted words are
+    /// built a chunk at a time first: that loop has no stores but its own, and the compiler
+    /// vectorizes it (fractions two at a time on SSE2).
     #[inline(never)]
     fn run_slice(&mut self, events: &[u64], k: u32, slices: Slices) {
         const CHUNK: usize = 64;
-        let mut fracs = [0f32; CHUNK];
+        let mut words = [0u64; CHUNK];
+        let step = u64::from(k) * self.slice_step;
         for chunk in events.chunks(CHUNK) {
-            for (f, &w) in fracs.iter_mut().zip(chunk) {
-                *f = slices.fraction_in(offset(w), k);
+            for (s, &w) in words.iter_mut().zip(chunk) {
+                *s = sorted_word(w, step, slices.fraction_in(offset(w), k));
             }
-            self.run(chunk.iter().zip(&fracs).map(|(&w, &f)| (w, k, f)));
+            for &s in words.get(..chunk.len()).unwrap_or_default() {
+                self.scatter(s);
+            }
         }
     }
 
-    /// Scatters `(word, slice, fraction)` items.
+    /// Counts a sorted word's row bin and scatters it by column.
     #[inline(always)]
-    fn run(&mut self, items: impl Iterator<Item = (u64, u32, f32)>) {
-        for (w, k, frac) in items {
-            // The row field becomes the row bin `k·H + y`.
-            let low = (w & 0xffff_ffff) + u64::from(k) * self.slice_step;
-            if let Some(count) = self.hist_rows.get_mut((low >> RB_SHIFT) as usize) {
-                *count += 1;
-            }
-            let x = w & X_MASK;
-            if let Some(start) = self.starts.get_mut(x as usize) {
-                let at = *start as usize;
-                *start += 1;
-                if let Some(slot) = self.sorted.get_mut(at) {
-                    *slot = low | u64::from(frac.to_bits()) << 32;
-                }
+    fn scatter(&mut self, s: u64) {
+        if let Some(count) = self.hist_rows.get_mut((s as u32 >> RB_SHIFT) as usize) {
+            *count += 1;
+        }
+        if let Some(start) = self.starts.get_mut((s & X_MASK) as usize) {
+            let at = *start as usize;
+            *start += 1;
+            if let Some(slot) = self.sorted.get_mut(at) {
+                *slot = s;
             }
         }
     }
+}
+
+/// A buffered word's sorted form: its row field moved by `step` (`k·H << RB_SHIFT`) to the row
+/// bin `k·H + y`, and its fraction in place of the offset.
+#[inline(always)]
+fn sorted_word(w: u64, step: u64, frac: f32) -> u64 {
+    ((w & 0xffff_ffff) + step) | u64::from(frac.to_bits()) << 32
 }
 
 fn exclusive_prefix_sum(bins: &mut [u32]) {
