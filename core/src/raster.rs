@@ -16,7 +16,7 @@
 //! No dense `K × H × W` grid (346 × 260 × 4 cells would not fit an MCU). A window of capacity
 //! `C` uses two `u64` words per event (16 bytes, the output points included) plus one `u32`
 //! histogram bin per column and per `(slice, row)`: for DAVIS346 and `K = 4`, 5.5 KiB whatever `C`.
-//! The close also takes 256 bytes of stack (a chunk of 64 fractions).
+//! The close also takes 512 bytes of stack (a chunk of 64 sorted words).
 //!
 //! # Algorithm
 //! While a window fills, each event is packed into one word of buffer A and counted in a
@@ -458,9 +458,9 @@ impl<S: RasterStorage> Rasterizer<S> {
     /// already has its first event, stopping before any event that would close the window.
     ///
     /// Written for few live values (`scripts/callgrind-raster.sh`): the buffer and the
-    /// histogram are sliced to their bounds first, the loop ([`Run::store`]) runs over at most
-    /// as many events as the window has room for (so it needs no room test), drops are
-    /// counted from the consumed count afterwards, the time test is one unsigned compare, and
+    /// histogram are sliced to their bounds first, the batch is cut to the window's room (so
+    /// the loop, [`Run::store`], needs no room test but the one bound of its zip over slots and
+    /// events), drops are counted from the consumed count afterwards, the time test is one unsigned compare, and
     /// the window's time range is not tracked per event: an in-order window's range is its
     /// first and last offsets, and the close finds an out-of-order window's range itself.
     fn fill(&mut self, events: &[Event]) -> usize {
@@ -511,7 +511,8 @@ impl<S: RasterStorage> Rasterizer<S> {
             span,
         };
         // Runs of accepted events, each stored slot by slot; a dropped event (rare: a pixel
-        // outside the sensor) ends a run and is skipped, a time jump ends the loop.
+        // outside the sensor) ends a run and is skipped; a time jump or the end of a duration
+        // window ends the loop.
         let (mut used, mut len) = (0, 0);
         while let (Some(rest), Some(slots)) = (batch.get(used..), room.get_mut(len..)) {
             let stored = run.store(rest, slots, hist_x, &mut u_last, &mut backwards);
@@ -718,7 +719,7 @@ fn check_config(
 /// The per-event tests of [`Rasterizer::fill`]'s loop.
 #[derive(Clone, Copy)]
 struct Run {
-    /// `H << 16`: an event's `x | y << 16` lies below it exactly when `y < H`.
+    /// `H << RB_SHIFT`: an event's `x | y << RB_SHIFT` lies below it exactly when `y < H`.
     rows_end: u32,
     /// `t_first + i32::MIN`: `t − t_lo` is the offset from `t_first` plus 2^31.
     t_lo: i64,
@@ -765,7 +766,7 @@ impl Run {
     }
 }
 
-/// A buffered event word: `x | y << 16` (column and row, checked against the sensor), the
+/// A buffered event word: `x | y << RB_SHIFT` (column and row, checked against the sensor), the
 /// polarity and `u`, the time offset from the window's first event plus 2^31.
 #[inline(always)]
 fn buffered_word(xy: u32, on: bool, u: u32) -> u64 {
@@ -911,9 +912,9 @@ impl Slices {
     }
 }
 
-/// The first counting-sort pass: buffered words (in arrival order) to their sorted-word form
-/// (`x | p | row bin | fraction`), scattered into `sorted` by column, stably (`starts`: the
-/// columns' exclusive prefix sums), with the `(slice, row)` bins counted.
+/// The first counting-sort pass: sorted words (`x | p | row bin | fraction`, built from the
+/// buffered words in arrival order by [`sorted_word`]) scattered into `sorted` by column,
+/// stably (`starts`: the columns' exclusive prefix sums), with the `(slice, row)` bins counted.
 struct ColumnScatter<'a> {
     sorted: &'a mut [u64],
     starts: &'a mut [u32],

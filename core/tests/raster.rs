@@ -485,7 +485,7 @@ fn in_order_slice_runs_end_where_the_reference_slices_change() {
     }
 }
 
-/// Slices of an in-order window longer than the 64 fractions computed at a time (full chunks,
+/// Slices of an in-order window longer than the 64 sorted words built at a time (full chunks,
 /// a partial last one, empty slices between), on few cells so that cells sum many fractions.
 #[test]
 fn long_in_order_slices_match_reference() {
