@@ -31,7 +31,9 @@
 //!
 //! In a window whose events came in time order (every real recording's), slices are runs of
 //! arrival order: the close finds each run's end by bisection with the same f64 arithmetic and
-//! gives its events their slice without computing one per event.
+//! gives its events their slice without computing one per event. On 32-bit Arm builds without
+//! `arm-fpv5` (cores whose f64 is software: Cortex-M0, M4, M33) each fraction is first computed
+//! in integers, exactly where an error bound proves it (`FixedFraction`), and in f64 otherwise.
 //!
 //! # Odd input, defined
 //! - A pixel outside the configured sensor is dropped and counted ([`RasterStats::dropped_out_of_range`]).

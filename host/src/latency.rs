@@ -14,14 +14,14 @@
 //! | Cortex-M4 | 1.25 | single-issue, 3-stage; loads take 2 cycles, one load per 2–3 instructions in the kernels |
 //! | Cortex-M33 | 1.2 | single-issue, 3-stage like the M4, with the DSP extension (assumed present) |
 //!
-//! The M4 and M33 run the same Thumb-2 + DSP instructions the M7 image uses, except the
-//! assembly requantization (`VMAXNM`, `VCVTN`; feature `arm-fpv5`): their point layers and FC
-//! layers take the per-MAC costs of the same image built without that feature, measured beside
-//! the M7's. That image is still compiled for the M7 (`-C target-cpu=cortex-m7`), so the
-//! portable requantization's float clamps are `VMAXNM`/`VMINNM` there and the rasterizer's f64
-//! arithmetic runs on the M7's double-precision FPU. An M4 has neither (compare-and-select
-//! pairs, about 4 more instructions per output; f64 in software): its figures are lower
-//! bounds. Caches and flash wait states are not modelled.
+//! The M4 and M33 cannot run the assembly requantization (`VMAXNM`, `VCVTN`; feature
+//! `arm-fpv5`) and have no double-precision FPU: their rasterization, point layers and FC
+//! layers take the costs of the firmware built for the Cortex-M4 (`-C target-cpu=cortex-m4`,
+//! `arm-dsp` alone, so f64 in software and the rasterizer's integer slice fractions), measured
+//! under the same QEMU beside the M7's. Their input decoding, sampling, decoding and
+//! confidences take the M7's counts (the M4 build's are within 4 % of them). The M33 runs the
+//! M4 build's instructions (ARMv8-M Mainline with the DSP extension), not a build of its own.
+//! Caches and flash wait states are not modelled.
 
 use anyhow::{anyhow, bail, Result};
 use serde::{Deserialize, Serialize};
@@ -44,6 +44,9 @@ pub struct Measured {
     pub instructions_per_input_event: f64,
     /// Rasterization, instructions per event (window close included).
     pub instructions_per_event: f64,
+    /// Rasterization on a core without the M7's FPU (M4, M33): the firmware built for the
+    /// Cortex-M4, instructions per event.
+    pub instructions_per_event_without_arm_fpv5: f64,
     /// Point layers, instructions per MAC (`per_point / macs_per_point`), over widened weights
     /// (`evpose_core::Plan::widened`, what the firmware runs).
     pub instructions_per_point_mac: f64,
@@ -53,8 +56,8 @@ pub struct Measured {
     /// After pooling (FC layers and heads), instructions per MAC.
     pub instructions_per_vector_mac: f64,
     /// Point layers on a core that cannot build the `arm-fpv5` requantization (M4, M33),
-    /// instructions per MAC: the same M7 image built with `arm-dsp` alone (over widened
-    /// weights, as the M7's figure).
+    /// instructions per MAC: the firmware built for the Cortex-M4 with `arm-dsp` alone (over
+    /// widened weights, as the M7's figure).
     pub instructions_per_point_mac_without_arm_fpv5: f64,
     /// After pooling on such a core, instructions per MAC.
     pub instructions_per_vector_mac_without_arm_fpv5: f64,
@@ -230,7 +233,12 @@ pub fn estimate(
     let per_point = point_mac * m.macs_per_point as f64 + k.instructions_per_sampled_point;
     let bins = (m.joints * (m.width + m.height)) as f64;
     let input = k.instructions_per_input_event * window_events as f64;
-    let rasterize = k.instructions_per_event * window_events as f64;
+    let per_event = if fpv5 {
+        k.instructions_per_event
+    } else {
+        k.instructions_per_event_without_arm_fpv5
+    };
+    let rasterize = per_event * window_events as f64;
     let fixed = input
         + rasterize
         + k.sample_instructions_per_window
@@ -294,6 +302,7 @@ mod tests {
             window_events: 100,
             instructions_per_input_event: 1.0,
             instructions_per_event: 10.0,
+            instructions_per_event_without_arm_fpv5: 30.0,
             instructions_per_point_mac: 2.0,
             instructions_per_point_mac_row_major: 2.5,
             instructions_per_point_mac_row_major_without_arm_fpv5: 3.5,
@@ -325,8 +334,7 @@ mod tests {
         let sum = l.input + l.rasterize + l.sample + l.infer + l.decode + l.confidence;
         assert!((sum - want).abs() < 1e-6);
         assert!((l.ms - want / 480e3).abs() < 1e-9);
-        // The M4 runs the point layers and the layers after pooling without the FPv5
-        // requantization: their per-MAC costs without it.
+        // The M4 takes the M4 build's costs: the rasterizer's and the per-MAC ones.
         let m4 = estimate(
             &m,
             7500,
@@ -334,7 +342,8 @@ mod tests {
             "cortex-m4@240".parse().unwrap(),
             Weights::Widened,
         );
-        let want4 = want + (m.macs_per_point * 256) as f64 + m.macs_after_pooling as f64;
+        let want4 =
+            want + 7500.0 * 20.0 + (m.macs_per_point * 256) as f64 + m.macs_after_pooling as f64;
         assert!((m4.ms - want4 * 1.25 / 240e3).abs() < 1e-9);
         // Over row-major weights the point layers take their own per-MAC costs, with and
         // without the FPv5 requantization; nothing else changes.

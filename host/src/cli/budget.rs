@@ -168,13 +168,14 @@ fn print_latency(
     println!(
         "\nlatency per {events}-event window at {points} points, point layers over {over}, from \
          instructions measured under QEMU (commit {}, model {}: {:.1}/event, {:.3}/point-layer \
-         MAC, {:.3}/MAC after pooling; without the `arm-fpv5` requantization, for the M4 and \
-         M33, {:.3} and {:.3}); cycles = instructions x CPI (assumed):",
+         MAC, {:.3}/MAC after pooling; the build for the M4, used for the M4 and M33, \
+         {:.1}, {:.3} and {:.3}); cycles = instructions x CPI (assumed):",
         k.commit,
         k.model,
         k.instructions_per_event,
         point,
         k.instructions_per_vector_mac,
+        k.instructions_per_event_without_arm_fpv5,
         point_m4,
         k.instructions_per_vector_mac_without_arm_fpv5
     );
