@@ -40,10 +40,8 @@ pub fn round_clamp(v: f32, lo: f32, hi: f32) -> f32 {
     // bounds saturate either way. NaN cannot occur (finite integers times finite scales).
     // `at_least`/`at_most` rather than clamp: same values for every non-NaN input, and the
     // loops over layers vectorize (clamp's bound check and NaN rules keep them scalar).
-    at_most(
-        at_least(round_half_even(at_most(at_least(v, lo - 1.0), hi + 1.0)), lo),
-        hi,
-    )
+    let v = at_most(at_least(v, lo - 1.0), hi + 1.0);
+    at_most(at_least(round_half_even(v), lo), hi)
 }
 
 /// `v.max(c)` for a bound `c` that is not NaN (a NaN `v` gives `c`), as one compare and one
