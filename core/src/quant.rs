@@ -45,10 +45,11 @@ pub fn round_clamp(v: f32, lo: f32, hi: f32) -> f32 {
 }
 
 /// `v.max(c)` for a bound `c` that is not NaN (a NaN `v` gives `c`), as one compare and one
-/// select: what x86's `maxps` computes and an FPU without `VMAXNM` (the Cortex-M4's FPv4) does
-/// in two instructions, where `f32::max` calls `fmaxf` there (about 15 instructions and a
-/// call). Of +0.0 and −0.0 it returns `c`, which `max` leaves open; the callers round to
-/// integers, where the two are the same.
+/// select: what x86's `maxps` computes (the requantization loop compiles to it), and on an FPU
+/// without `VMAXNM` (the Cortex-M4's FPv4) a compare, a flag transfer and a conditional move,
+/// where `f32::max` calls `fmaxf` (about 15 instructions and a call). Of +0.0 and −0.0 it
+/// returns `c`, which `max` leaves open; the callers round to integers, where the two are the
+/// same.
 #[inline(always)]
 pub fn at_least(v: f32, c: f32) -> f32 {
     if v > c {
@@ -87,10 +88,9 @@ pub fn requantize(acc: i32, scale: f32, leaky: Option<f32>) -> i8 {
         }
     }
     // Same value as `round_clamp(v, -128.0, 127.0)`: clamp into the exact range, round,
-    // saturate. [`at_least`]/[`at_most`]: one instruction each on x86 (`maxps`/`minps`) and
-    // on a Cortex-M7 (VMAXNM/VMINNM), a compare and a select on the M4's FPv4 (`f32::max`
-    // called `fmaxf` there); a NaN (an infinite scale times 0) gives -129 and saturates to
-    // -128 instead of passing its bits on. (`Model::parse` refuses non-finite scales; the
+    // saturate. [`at_least`]/[`at_most`]: one instruction each on x86 (`maxps`/`minps`), a
+    // compare and a select on the M4's FPv4 (`f32::max` called `fmaxf` there); a NaN (an
+    // infinite scale times 0) gives -129 and saturates to -128 instead of passing its bits on. (`Model::parse` refuses non-finite scales; the
     // Cortex-M7 kernel, `kernels::arm::requantize_i8`, relies on it.)
     round_to_i32(at_most(at_least(v, -129.0), 128.0)).clamp(-128, 127) as i8
 }
@@ -162,6 +162,43 @@ impl InputCoding {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `at_least`/`at_most` are `f32::max`/`min` with a bound that is not NaN, for every kind
+    /// of value: NaN gives the bound, infinities, equal values, and ±0 against a non-zero
+    /// bound (against a zero bound `max` may return either zero; both compare equal).
+    #[test]
+    fn at_least_and_at_most_are_max_and_min() {
+        let values = [
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            0.0,
+            -0.0,
+            -129.0,
+            128.0,
+            127.5,
+            -128.5,
+            1e-40,
+            -3.4e38,
+            f32::MAX,
+            f32::MIN,
+            0.49999997,
+        ];
+        for c in [-129.0f32, 128.0, -2048.0, 2047.0, 0.0, -0.0] {
+            for v in values
+                .into_iter()
+                .chain((0..200).map(|i| (i as f32 - 100.0) * 2.75))
+            {
+                let (lo, hi) = (at_least(v, c), at_most(v, c));
+                assert!(lo == v.max(c) && !lo.is_nan(), "at_least({v}, {c}) = {lo}");
+                assert!(hi == v.min(c) && !hi.is_nan(), "at_most({v}, {c}) = {hi}");
+                if c != 0.0 {
+                    assert_eq!(lo.to_bits(), v.max(c).to_bits(), "{v} {c}");
+                    assert_eq!(hi.to_bits(), v.min(c).to_bits(), "{v} {c}");
+                }
+            }
+        }
+    }
 
     #[test]
     fn rounds_ties_to_even() {
