@@ -489,7 +489,7 @@ impl<S: RasterStorage> Rasterizer<S> {
         // event's: with `len > 0` that event is in this window (`insert` and this loop store
         // only offsets that fit in i32), so it fits.
         let d_last = i32::try_from(self.t_last.wrapping_sub(t_first)).unwrap_or(i32::MIN);
-        let mut u_last = d_last as u32 ^ 0x8000_0000;
+        let mut u_last = biased(d_last);
         // `e.t − t_lo` is `d − i32::MIN` for `d = e.t − t_first`, wrapping the same way.
         let t_lo = t_first.wrapping_add(i64::from(i32::MIN));
         let mut backwards = 0usize;
@@ -529,10 +529,7 @@ impl<S: RasterStorage> Rasterizer<S> {
         self.stats.dropped_out_of_range += (used - len) as u64;
         self.stats.out_of_order += backwards as u64;
         self.disordered |= backwards > 0;
-        (self.len, self.t_last) = (
-            start + len,
-            t_first + i64::from((u_last ^ 0x8000_0000) as i32),
-        );
+        (self.len, self.t_last) = (start + len, t_first + i64::from(unbiased(u_last)));
         used
     }
 
@@ -623,7 +620,7 @@ impl<S: RasterStorage> Rasterizer<S> {
         }
         self.t_last = event.t;
         // In range: checked above against t_first, or 0 for the first event.
-        let u = (event.t - self.t_first) as i32 as u32 ^ 0x8000_0000;
+        let u = biased((event.t - self.t_first) as i32);
         let parts = self.storage.parts();
         // `len < capacity` (a full window closes) and `x < width` (checked by `push`).
         if let (Some(slot), Some(bin)) = (
@@ -862,7 +859,20 @@ fn scatter_rows(sorted: &[u64], starts: &mut [u32], out: &mut [u64]) {
 /// A buffered word's time offset from the window's first event.
 #[inline(always)]
 fn offset(w: u64) -> i32 {
-    ((w >> 32) as u32 ^ 0x8000_0000) as i32
+    unbiased((w >> 32) as u32)
+}
+
+/// The stored form of a time offset `d` from the window's first event: `d + 2^31` as a u32,
+/// in the same order as `d` (what [`Run::store`] computes as `t − t_lo`).
+#[inline(always)]
+fn biased(d: i32) -> u32 {
+    d as u32 ^ 0x8000_0000
+}
+
+/// The offset `d` of a stored `d + 2^31` ([`biased`]'s inverse).
+#[inline(always)]
+fn unbiased(u: u32) -> i32 {
+    (u ^ 0x8000_0000) as i32
 }
 
 /// Whether the in-order close computes fractions in integers first ([`FixedFraction`]): on
@@ -877,7 +887,8 @@ struct Slices {
     off_min: f64,
     span: f64,
     slices: f64,
-    /// The same fractions in integer arithmetic, where they can be told exactly.
+    /// The same fractions in integer arithmetic, where they can be told exactly (only in the
+    /// builds that use them, [`FIXED_FRACTIONS`]).
     fixed: Option<FixedFraction>,
 }
 
@@ -889,7 +900,11 @@ impl Slices {
             off_min: f64::from(off_min),
             span,
             slices,
-            fixed: FixedFraction::new(off_min, span, slices),
+            fixed: if FIXED_FRACTIONS {
+                FixedFraction::new(off_min, span, slices)
+            } else {
+                None
+            },
         }
     }
 
@@ -1282,7 +1297,7 @@ mod tests {
                 ..RasterConfig::DAVIS346
             };
             let s = Slices::new(&c, (off_min, off_max));
-            let fixed = s.fixed.unwrap_or_else(|| {
+            let fixed = FixedFraction::new(off_min, s.span, s.slices).unwrap_or_else(|| {
                 panic!("no fixed fractions: span {span}, K {slices}, {off_min}..{off_max}")
             });
             for a in offs.clone() {
