@@ -337,13 +337,8 @@ mod tests {
         assert!((sum - want).abs() < 1e-6);
         assert!((l.ms - want / 480e3).abs() < 1e-9);
         // The M4 takes the M4 build's costs: the rasterizer's and the per-MAC ones.
-        let m4 = estimate(
-            &m,
-            7500,
-            &k,
-            "cortex-m4@240".parse().unwrap(),
-            Weights::Widened,
-        );
+        let t4: Target = "cortex-m4@240".parse().unwrap();
+        let m4 = estimate(&m, 7500, &k, t4, Weights::Widened);
         let want4 =
             want + 7500.0 * 20.0 + (m.macs_per_point * 256) as f64 + m.macs_after_pooling as f64;
         assert!((m4.ms - want4 * 1.25 / 240e3).abs() < 1e-9);
@@ -353,13 +348,7 @@ mod tests {
         let rm = estimate(&m, 7500, &k, t, Weights::RowMajor);
         assert!((rm.instructions - (want + 0.5 * point)).abs() < 1e-6);
         assert_eq!(rm.weights, Weights::RowMajor);
-        let rm4 = estimate(
-            &m,
-            7500,
-            &k,
-            "cortex-m4@240".parse().unwrap(),
-            Weights::RowMajor,
-        );
+        let rm4 = estimate(&m, 7500, &k, t4, Weights::RowMajor);
         assert!((rm4.ms - (want4 + 0.5 * point) * 1.25 / 240e3).abs() < 1e-9);
         // At the largest real-time count the window fits in 36 ms; one point more does not.
         let at = |n: u64| {
