@@ -307,43 +307,46 @@ fn widened_int8_engine_gives_identical_integers_on_every_block() {
     }
 }
 
-/// The small model quantized with two calibrations: two int8 blobs of one shape whose
-/// checksums differ.
-fn two_small_blobs() -> (AlignedBlob, AlignedBlob) {
+/// The small model quantized with two calibrations, parsed: two int8 models of one shape
+/// whose checksums differ, handed to `f`.
+fn with_two_small_models<R>(
+    f: impl FnOnce(&evpose_core::Model<'_>, &evpose_core::Model<'_>) -> R,
+) -> R {
     let case = small();
     let net = model::import_onnx(&case.model).unwrap();
     let blob_of = |i: usize| int8_blob(&net, &case.inputs[i..i + 1]);
     let (a, b) = (blob_of(0), blob_of(1));
     assert_ne!(a.bytes(), b.bytes(), "two calibrations, two blobs");
-    (a, b)
+    let (ma, mb) = (
+        evpose_core::Model::parse(a.bytes()).unwrap(),
+        evpose_core::Model::parse(b.bytes()).unwrap(),
+    );
+    f(&ma, &mb)
 }
 
 #[test]
 fn widened_weights_of_another_model_or_a_short_buffer_are_errors() {
     use evpose_core::kernels::Kernels;
-    use evpose_core::{scratch_words, widen_point_layers, widened_words, InferError, Model, Plan};
-    let (a, b) = two_small_blobs();
-    let (ma, mb) = (
-        Model::parse(a.bytes()).unwrap(),
-        Model::parse(b.bytes()).unwrap(),
-    );
-    let need = widened_words(&ma);
-    assert!(need > 0);
-    assert_eq!(
-        widen_point_layers(&ma, &mut vec![0; need - 1]).unwrap_err(),
-        InferError::WidenBuffer {
-            needed: need,
-            got: need - 1
-        }
-    );
-    // A longer buffer is fine; the weights of model a do not plan model b.
-    let mut buf = vec![0u32; need + 5];
-    let widened = widen_point_layers(&ma, &mut buf).unwrap();
-    assert!(Plan::widened(&ma, Kernels::best(), &widened, scratch_words(&ma)).is_ok());
-    assert_eq!(
-        Plan::widened(&mb, Kernels::best(), &widened, scratch_words(&mb)).unwrap_err(),
-        InferError::PackedModel
-    );
+    use evpose_core::{scratch_words, widen_point_layers, widened_words, InferError, Plan};
+    with_two_small_models(|ma, mb| {
+        let need = widened_words(ma);
+        assert!(need > 0);
+        assert_eq!(
+            widen_point_layers(ma, &mut vec![0; need - 1]).unwrap_err(),
+            InferError::WidenBuffer {
+                needed: need,
+                got: need - 1
+            }
+        );
+        // A longer buffer is fine; the weights of model a do not plan model b.
+        let mut buf = vec![0u32; need + 5];
+        let widened = widen_point_layers(ma, &mut buf).unwrap();
+        assert!(Plan::widened(ma, Kernels::best(), &widened, scratch_words(ma)).is_ok());
+        assert_eq!(
+            Plan::widened(mb, Kernels::best(), &widened, scratch_words(mb)).unwrap_err(),
+            InferError::PackedModel
+        );
+    });
 }
 
 #[test]
@@ -371,53 +374,50 @@ fn host_runner_over_row_major_weights_gives_the_packed_runners_integers() {
 #[test]
 fn packed_weights_of_another_model_or_in_another_buffer_are_errors() {
     use evpose_core::kernels::Kernels;
-    use evpose_core::{pack_point_layers, packed_bytes, scratch_words, InferError, Model, Plan};
-    let (a, b) = two_small_blobs();
-    let (ma, mb) = (
-        Model::parse(a.bytes()).unwrap(),
-        Model::parse(b.bytes()).unwrap(),
-    );
-    let need = packed_bytes(&ma);
-    assert!(need > 0);
-    assert_eq!(
-        pack_point_layers(&ma, &mut vec![0; need - 1]).unwrap_err(),
-        InferError::PackBuffer {
-            needed: need,
-            got: need - 1
-        }
-    );
-    let mut buf = vec![0u8; need];
-    let layout = pack_point_layers(&ma, &mut buf).unwrap();
-    // The layout of model a, asked for model b.
-    assert_eq!(
-        layout.weights(&mb, &buf).unwrap_err(),
-        InferError::PackedModel
-    );
-    // Another buffer: shorter, or a copy of the right length (its contents could be anything).
-    assert_eq!(
-        layout.weights(&ma, &buf[..need / 2]).unwrap_err(),
-        InferError::PackedBuffer
-    );
-    let copy = buf.clone();
-    assert_eq!(
-        layout.weights(&ma, &copy).unwrap_err(),
-        InferError::PackedBuffer
-    );
-    // Weights of model a, run with model b.
-    let packed = layout.weights(&ma, &buf).unwrap();
-    let (mut x, mut y) = (vec![0; 13 * 346], vec![0; 13 * 260]);
-    let mut scratch = vec![0; scratch_words(&mb)];
-    let case = small();
-    let input = &case.inputs[0][..10];
-    let k = Kernels::detect();
-    assert_eq!(
-        Plan::packed(&mb, k, &packed, scratch.len()).unwrap_err(),
-        InferError::PackedModel
-    );
-    Plan::packed(&ma, k, &packed, scratch.len())
-        .unwrap()
-        .run_i8(input, &mut scratch, &mut x, &mut y)
-        .unwrap();
+    use evpose_core::{pack_point_layers, packed_bytes, scratch_words, InferError, Plan};
+    with_two_small_models(|ma, mb| {
+        let need = packed_bytes(ma);
+        assert!(need > 0);
+        assert_eq!(
+            pack_point_layers(ma, &mut vec![0; need - 1]).unwrap_err(),
+            InferError::PackBuffer {
+                needed: need,
+                got: need - 1
+            }
+        );
+        let mut buf = vec![0u8; need];
+        let layout = pack_point_layers(ma, &mut buf).unwrap();
+        // The layout of model a, asked for model b.
+        assert_eq!(
+            layout.weights(mb, &buf).unwrap_err(),
+            InferError::PackedModel
+        );
+        // Another buffer: shorter, or a copy of the right length (its contents could be anything).
+        assert_eq!(
+            layout.weights(ma, &buf[..need / 2]).unwrap_err(),
+            InferError::PackedBuffer
+        );
+        let copy = buf.clone();
+        assert_eq!(
+            layout.weights(ma, &copy).unwrap_err(),
+            InferError::PackedBuffer
+        );
+        // Weights of model a, run with model b.
+        let packed = layout.weights(ma, &buf).unwrap();
+        let (mut x, mut y) = (vec![0; 13 * 346], vec![0; 13 * 260]);
+        let mut scratch = vec![0; scratch_words(mb)];
+        let case = small();
+        let input = &case.inputs[0][..10];
+        let k = Kernels::detect();
+        assert_eq!(
+            Plan::packed(mb, k, &packed, scratch.len()).unwrap_err(),
+            InferError::PackedModel
+        );
+        Plan::packed(ma, k, &packed, scratch.len())
+            .unwrap()
+            .run_i8(input, &mut scratch, &mut x, &mut y)
+            .unwrap();
+    });
 }
 
 #[test]
