@@ -1,7 +1,9 @@
 //! The firmware (`firmware/`) under QEMU against the core on the host, window for window.
 //!
 //! `firmware_matches_the_host_core_under_qemu` builds the `thumbv7em-none-eabihf` image, runs it
-//! on QEMU's `mps2-an500` (Cortex-M7) with semihosting and `-icount shift=0`, decodes its defmt
+//! on QEMU's `mps2-an500` (Cortex-M7) with semihosting and `-icount shift=0` (and
+//! `cortex_m4_build_matches_the_host_core_under_qemu` the same firmware built for a Cortex-M4F,
+//! on QEMU's `mps2-an386`), decodes its defmt
 //! frames with `defmt-decoder` and the ELF's defmt table (what `defmt-print` does), runs the same
 //! event stream through `evpose-core` on the host with the same storage, seed and model blob,
 //! and asserts identical windows, point clouds, network inputs, head accumulators (CRC-32),
@@ -253,10 +255,72 @@ fn require_tools() {
     );
 }
 
-/// Builds the release image (its own workspace and target folder); returns the ELF's path.
-fn build_firmware() -> PathBuf {
+/// The cores the firmware is built and run for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Cpu {
+    /// The firmware as configured (`firmware/.cargo/config.toml`, default features): a
+    /// Cortex-M7 with its double-precision FPv5 FPU, on QEMU's `mps2-an500`.
+    M7,
+    /// The same firmware built as a Cortex-M4F runs it (`-C target-cpu=cortex-m4`, without the
+    /// `fpv5` feature: FPv4 requantization, f64 in software) on QEMU's Cortex-M4
+    /// (`mps2-an386`), which faults on any instruction the M4 lacks.
+    M4,
+}
+
+impl Cpu {
+    fn machine(self) -> &'static str {
+        match self {
+            Cpu::M7 => "mps2-an500",
+            Cpu::M4 => "mps2-an386",
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            Cpu::M7 => "cortex-m7",
+            Cpu::M4 => "cortex-m4",
+        }
+    }
+}
+
+/// The rustflags of `firmware/.cargo/config.toml` (its one `rustflags = [...]` list), with the
+/// target CPU replaced by `cpu`'s.
+fn firmware_rustflags(cpu: Cpu) -> Vec<String> {
+    let config = std::fs::read_to_string(firmware_dir().join(".cargo/config.toml")).unwrap();
+    let list = config
+        .split_once("rustflags = [")
+        .and_then(|(_, rest)| rest.split_once(']'))
+        .expect("firmware/.cargo/config.toml has a rustflags list")
+        .0;
+    let flags: Vec<String> = list
+        .lines()
+        .map(|l| l.split('#').next().unwrap_or(""))
+        .flat_map(|l| l.split(','))
+        .map(|f| f.trim().trim_matches('"'))
+        .filter(|f| !f.is_empty())
+        .map(|f| {
+            if f.starts_with("target-cpu=") {
+                format!("target-cpu={}", cpu.name())
+            } else {
+                f.to_string()
+            }
+        })
+        .collect();
+    assert!(
+        flags.iter().any(|f| f.starts_with("target-cpu=")),
+        "no target-cpu in {flags:?}"
+    );
+    flags
+}
+
+/// Builds the release image for `cpu` (its own workspace; the M4's in a target folder of its
+/// own); returns the ELF's path.
+fn build_firmware(cpu: Cpu) -> PathBuf {
     let dir = firmware_dir();
-    let target = dir.join("target");
+    let target = match cpu {
+        Cpu::M7 => dir.join("target"),
+        Cpu::M4 => dir.join("target/cortex-m4"),
+    };
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let mut cmd = Command::new(cargo);
     // The firmware's .cargo/config.toml (target, linker scripts, CPU) applies from its folder;
@@ -273,23 +337,30 @@ fn build_firmware() -> PathBuf {
     ] {
         cmd.env_remove(var);
     }
+    if cpu == Cpu::M4 {
+        // The config's flags with the other CPU (the variable replaces the config's list).
+        cmd.arg("--no-default-features").env(
+            "CARGO_ENCODED_RUSTFLAGS",
+            firmware_rustflags(cpu).join("\x1f"),
+        );
+    }
     let out = cmd.output().expect("cargo runs");
     assert!(
         out.status.success(),
-        "building the firmware failed:\n{}",
+        "building the firmware for {cpu:?} failed:\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
     target.join("thumbv7em-none-eabihf/release/evpose-firmware")
 }
 
 /// Runs the image under QEMU; returns what it wrote to semihosting stdout (defmt frames).
-fn run_qemu(elf: &Path) -> Vec<u8> {
+fn run_qemu(elf: &Path, cpu: Cpu) -> Vec<u8> {
     let mut child = Command::new("qemu-system-arm")
         .args([
             "-machine",
-            "mps2-an500",
+            cpu.machine(),
             "-cpu",
-            "cortex-m7",
+            cpu.name(),
             "-nographic",
             "-monitor",
             "none",
@@ -567,19 +638,29 @@ fn host_windows(events: &[Event], blob: &[u8], lag: LagParams) -> (Vec<WindowRes
     (out, lagged_out)
 }
 
-#[test]
-fn firmware_matches_the_host_core_under_qemu() {
+/// An image's output, checked against the host core.
+struct Checked {
+    elf: PathBuf,
+    text: String,
+    firmware: Vec<(WindowResult, String)>,
+    blob: AlignedBlob,
+}
+
+/// Builds the image for `cpu`, runs it under QEMU and asserts that it matches the host core:
+/// the kernels' boot self-test, every window (points, network input, heads, joints,
+/// confidences, filtered joints), the row-major plan, the fixed-lag filter, the event counts.
+fn run_and_compare(cpu: Cpu) -> Checked {
     require_tools();
-    let elf = build_firmware();
-    let lines = defmt_lines(&elf, &run_qemu(&elf));
+    let elf = build_firmware(cpu);
+    let lines = defmt_lines(&elf, &run_qemu(&elf, cpu));
     let text = lines.join("\n");
     assert!(
         !lines.iter().any(|l| l.starts_with("ERROR")),
         "the firmware reported an error:\n{text}"
     );
 
-    // The DSP and FPv5 kernels, on the real instructions, against the reference (boot
-    // self-test): i8 matvec, every int8 product, blocked matmat, pooling, i16 matvec and
+    // The DSP kernels and the requantization (FPv5 on the M7, FPv4 on the M4), on the real
+    // instructions, against the reference (boot self-test): i8 matvec, every int8 product, blocked matmat, pooling, i16 matvec and
     // requantization (five slopes each).
     let selftest = lines
         .iter()
@@ -642,6 +723,22 @@ fn firmware_matches_the_host_core_under_qemu() {
         .unwrap_or_else(|| panic!("no done line:\n{text}"));
     assert_eq!(field::<u64>(done, "accepted"), events.len() as u64);
     assert_eq!(field::<u64>(done, "dropped"), 0);
+    Checked {
+        elf,
+        text,
+        firmware,
+        blob,
+    }
+}
+
+#[test]
+fn firmware_matches_the_host_core_under_qemu() {
+    let Checked {
+        elf,
+        text,
+        firmware,
+        blob,
+    } = run_and_compare(Cpu::M7);
 
     // No heap: no heap section or allocator symbol in the image, nothing heap-like in the map.
     let image = image_budget(&elf).unwrap();
@@ -685,23 +782,44 @@ fn firmware_matches_the_host_core_under_qemu() {
         gone.len()
     );
 
-    // The figures (goals, not asserts): see the README's "Firmware (Cortex-M7)" section.
-    eprintln!("firmware output:\n{text}");
+    print_figures(Cpu::M7, &elf, &text, &firmware, &blob);
+}
+
+/// The figures (goals, not asserts): see the README's "Firmware (Cortex-M7)" section.
+fn print_figures(
+    cpu: Cpu,
+    elf: &Path,
+    text: &str,
+    firmware: &[(WindowResult, String)],
+    blob: &AlignedBlob,
+) {
+    eprintln!("firmware output ({cpu:?}):\n{text}");
+    let image = image_budget(elf).unwrap();
     let model = Model::parse(blob.bytes()).unwrap();
     for (i, (_, instr)) in firmware.iter().enumerate() {
         let infer: u64 = field(instr, "infer");
         let macs =
             model.macs_per_point() * model.input_points() as u64 + model.macs_after_pooling();
         eprintln!(
-            "window {i}: rasterize {:.1} instructions/event, infer {:.3} instructions/MAC \
-             overall, {} per point-layer MAC",
+            "{cpu:?} window {i}: rasterize {:.1} instructions/event, infer {:.3} \
+             instructions/MAC overall, {} per point-layer MAC",
             field::<f64>(instr, "rasterize") / 7_500.0,
             infer as f64 / macs as f64,
             field::<String>(instr, "per_point_layer_mac")
         );
     }
     eprintln!(
-        "image: flash {} bytes, RAM {} bytes ({} static + {:?} stack)",
+        "{cpu:?} image: flash {} bytes, RAM {} bytes ({} static + {:?} stack)",
         image.flash_bytes, image.ram_bytes, image.static_ram_bytes, image.stack_bytes
     );
+}
+
+/// The firmware as a Cortex-M4F runs it, on QEMU's Cortex-M4: the same results, bit for bit,
+/// from the FPv4 requantization and the rasterizer's integer slice fractions (f64 in
+/// software). Its figures are what `evpose budget` takes for cores without FPv5
+/// (`firmware/measured.json`'s `*_without_arm_fpv5`).
+#[test]
+fn cortex_m4_build_matches_the_host_core_under_qemu() {
+    let c = run_and_compare(Cpu::M4);
+    print_figures(Cpu::M4, &c.elf, &c.text, &c.firmware, &c.blob);
 }

@@ -14,14 +14,16 @@
 //! | Cortex-M4 | 1.25 | single-issue, 3-stage; loads take 2 cycles, one load per 2–3 instructions in the kernels |
 //! | Cortex-M33 | 1.2 | single-issue, 3-stage like the M4, with the DSP extension (assumed present) |
 //!
-//! The M4 and M33 cannot run the assembly requantization (`VMAXNM`, `VCVTN`; feature
-//! `arm-fpv5`) and have no double-precision FPU: their rasterization, point layers and FC
-//! layers take the costs of the firmware built for the Cortex-M4 (`-C target-cpu=cortex-m4`,
-//! `arm-dsp` alone, so f64 in software and the rasterizer's integer slice fractions), measured
-//! under the same QEMU beside the M7's. Their input decoding, sampling, decoding and
-//! confidences take the M7's counts: the M4 build's were within 4 % of them at d46c1f6
-//! (input 418.5 k against 403.6 k per window, sampling 112.9 k against 114.5 k, decoding
-//! 47.4 k against 48.6 k, confidences 761 k against 753 k). The M33 runs the
+//! The M4 and M33 cannot run the M7's assembly requantization (`VMAXNM`, `VCVTN`; feature
+//! `arm-fpv5`; they run an FPv4 form of it) and have no double-precision FPU: their
+//! rasterization, point layers and FC layers take the costs of the firmware built for the
+//! Cortex-M4 (`-C target-cpu=cortex-m4`, `arm-dsp` alone, so f64 in software and the
+//! rasterizer's integer slice fractions), measured on QEMU's Cortex-M4 beside the M7's
+//! (`tests/firmware_qemu.rs`, `cortex_m4_build_matches_the_host_core_under_qemu`). Their input
+//! decoding, sampling, decoding and confidences take the M7's counts: the M4 build's were
+//! within 5 % of them this stop (input 414.2–428.5 k against 398.0–413.2 k per window,
+//! sampling 112.1–113.6 k against 113.7–115.2 k, decoding 47.4 k against 48.6 k, confidences
+//! 327.6 k against 311.8 k). The M33 runs the
 //! M4 build's instructions (ARMv8-M Mainline with the DSP extension), not a build of its own.
 //! Caches and flash wait states are not modelled.
 

@@ -16,8 +16,10 @@
 //! - [`matvec_i16`] runs `SMLAD` on the stored i16 weights and inputs (the 15-bit SimDR heads
 //!   and the first layer), two rows at a time: an inline-assembly `LDRD` loop for word-aligned
 //!   operands with `K` a multiple of four (the heads), else [`matvec_i8`]'s loop in Rust.
-//! - [`requantize_i8`] (feature `arm-fpv5`, the Cortex-M7's double-precision FPv5 FPU) does
-//!   four outputs per pass with `VMAXNM` for the LeakyReLU and `VCVTN` for the rounding.
+//! - [`requantize_i8`] does four outputs per pass: with the feature `arm-fpv5` (the Cortex-M7's
+//!   double-precision FPv5 FPU) `VMAXNM` for the LeakyReLU and `VCVTN` for the rounding, on
+//!   other cores with an FPU (`eabihf`: the M4's FPv4) a compare, a conditional `VMUL` and
+//!   `VCVTR`.
 //!
 //! The instructions are inline assembly on `target_arch = "arm"` with the `arm-dsp`
 //! cargo feature: stable Rust cannot see the DSP extension in `cfg(target_feature)`, and the
@@ -970,16 +972,33 @@ pub fn pool_i8(max: &mut [i8], sum: &mut [i32], y: &[i8]) {
     super::reference::pool_i8(m_rest, s_rest, y_rest);
 }
 
-/// [`super::reference::requantize_i8`], bit-exact, four outputs per pass: with the
-/// `arm-fpv5` feature (Cortex-M7's FPv5 FPU) in inline assembly, everywhere else emulated.
+/// Whether [`requantize_i8`] runs its FPv4 form (an FPU without FPv5's `VMAXNM`).
+const FPV4_REQUANT: bool = cfg!(all(
+    target_arch = "arm",
+    target_abi = "eabihf",
+    not(feature = "arm-fpv5")
+));
+
+/// [`super::reference::requantize_i8`], bit-exact, four outputs per pass, in inline assembly
+/// on a Cortex-M with a hardware FPU (`target_abi = "eabihf"`), everywhere else emulated.
 ///
-/// Per output: `VCVT` to f32, `VMUL` by the scale, the LeakyReLU as `VMAXNM(v, α·v)`, then
-/// `VCVTN` (round to nearest, ties to even, whatever the FPSCR's rounding mode; saturating) and
-/// `SSAT #8`: about 8.5 instructions against about 18 for the reference's compare, select,
-/// float clamps and magic-number rounding. The max form equals `v < 0 ? α·v : v` for slopes
-/// in `[0, 1]` (`α = 1` is no LeakyReLU); a layer with another slope takes the reference. It
-/// needs finite scales, which [`crate::model::Model::parse`] checks: then `v` is never NaN
-/// (an infinite `v` times `α = 0` is, and `VMAXNM` returns `v`), and rounding first and
+/// With the `arm-fpv5` feature (the Cortex-M7's FPv5 FPU), per output: `VCVT` to f32, `VMUL`
+/// by the scale, the LeakyReLU as `VMAXNM(v, α·v)`, then `VCVTN` (round to nearest, ties to
+/// even, whatever the FPSCR's rounding mode; saturating) and `SSAT #8`: about 8.5 instructions
+/// against about 18 for the reference's compare, select, float clamps and magic-number
+/// rounding. The max form equals `v < 0 ? α·v : v` for slopes in `[0, 1]` (`α = 1` is no
+/// LeakyReLU); a layer with another slope takes the reference.
+///
+/// Without it (the FPv4-SP of a Cortex-M4, the single-precision FPv5 of an M33, which have no
+/// `VMAXNM`, or no `VCVTN` on FPv4): the LeakyReLU is the reference's own compare and a
+/// conditional `VMUL`, and the rounding `VCVTR`, which rounds in the FPSCR's mode: round to
+/// nearest, ties to even, the default that Rust's floating point assumes everywhere (the
+/// reference's magic-number rounding relies on it as well). About 10.5 instructions per output
+/// against about 24 for the reference on the M4. Slopes in `(0, 1]` only: an infinite `v`
+/// times `α = 0` is NaN, which `VCVTR` would turn into 0 where the reference saturates it.
+///
+/// Both need finite scales, which [`crate::model::Model::parse`] checks: then `v` is never NaN
+/// (but an infinite `v` times `α = 0`, which `VMAXNM` resolves to `v`), and rounding first and
 /// saturating after gives the reference's clamp-then-round.
 pub fn requantize_i8(acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut [i8]) {
     let n = acc.len().min(scales.len()).min(out.len());
@@ -989,7 +1008,7 @@ pub fn requantize_i8(acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut 
     };
     let alpha = match leaky {
         None => 1.0,
-        Some(a) if (0.0..=1.0).contains(&a) => a,
+        Some(a) if (0.0..=1.0).contains(&a) && (a > 0.0 || !FPV4_REQUANT) => a,
         Some(_) => return super::reference::requantize_i8(acc, scales, leaky, out),
     };
     let (a4, a_rest) = acc.as_chunks::<4>();
@@ -1074,7 +1093,90 @@ fn requantize_fours(acc: &[[i32; 4]], scales: &[[f32; 4]], alpha: f32, out: &mut
             );
         }
     }
-    #[cfg(not(all(target_arch = "arm", feature = "arm-fpv5")))]
+    #[cfg(all(target_arch = "arm", target_abi = "eabihf", not(feature = "arm-fpv5")))]
+    {
+        if n == 0 {
+            return;
+        }
+        // One step: four accumulators and four scales loaded with `VLDMIA`, per output a
+        // `VCVT`, the scale's `VMUL`, the LeakyReLU's `VCMP`, `VMRS` and conditional `VMUL`,
+        // and `VCVTR`; two `VMOV`s of two results each, `SSAT` and `STRB`. α travels in a
+        // core register: Rust's inline assembly takes FPU operands only on a double-precision
+        // FPU, but single-precision registers may be named as clobbers.
+        // SAFETY: as the FPv5 loop above: `n` steps of 16 bytes read from `acc` and `scales`
+        // (4-byte aligned for `VLDMIA`), `n` steps of 4 bytes written to `out`, until the
+        // accumulator pointer reaches `end`; only the named registers, the flags and `out`
+        // are written. Every instruction is VFPv2 (an `eabihf` target has such an FPU) or
+        // Armv7-M Thumb-2 (`SSAT`, `IT`).
+        unsafe {
+            core::arch::asm!(
+                "vmov s8, {al}",
+                "2:",
+                "vldmia {pa}!, {{s0-s3}}",
+                "vldmia {ps}!, {{s4-s7}}",
+                "vcvt.f32.s32 s0, s0",
+                "vcvt.f32.s32 s1, s1",
+                "vcvt.f32.s32 s2, s2",
+                "vcvt.f32.s32 s3, s3",
+                "vmul.f32 s0, s0, s4",
+                "vmul.f32 s1, s1, s5",
+                "vmul.f32 s2, s2, s6",
+                "vmul.f32 s3, s3, s7",
+                "vcmp.f32 s0, #0",
+                "vmrs APSR_nzcv, fpscr",
+                "it mi",
+                "vmulmi.f32 s0, s0, s8",
+                "vcmp.f32 s1, #0",
+                "vmrs APSR_nzcv, fpscr",
+                "it mi",
+                "vmulmi.f32 s1, s1, s8",
+                "vcmp.f32 s2, #0",
+                "vmrs APSR_nzcv, fpscr",
+                "it mi",
+                "vmulmi.f32 s2, s2, s8",
+                "vcmp.f32 s3, #0",
+                "vmrs APSR_nzcv, fpscr",
+                "it mi",
+                "vmulmi.f32 s3, s3, s8",
+                "vcvtr.s32.f32 s0, s0",
+                "vcvtr.s32.f32 s1, s1",
+                "vcvtr.s32.f32 s2, s2",
+                "vcvtr.s32.f32 s3, s3",
+                "vmov {r0}, {r1}, s0, s1",
+                "vmov {r2}, {r3}, s2, s3",
+                "ssat {r0}, #8, {r0}",
+                "ssat {r1}, #8, {r1}",
+                "ssat {r2}, #8, {r2}",
+                "ssat {r3}, #8, {r3}",
+                "strb {r0}, [{po}], #1",
+                "strb {r1}, [{po}], #1",
+                "strb {r2}, [{po}], #1",
+                "strb {r3}, [{po}], #1",
+                "cmp {pa}, {end}",
+                "bne 2b",
+                pa = inout(reg) acc.as_ptr() => _,
+                ps = inout(reg) scales.as_ptr() => _,
+                po = inout(reg) out.as_mut_ptr() => _,
+                end = in(reg) acc.as_ptr().wrapping_add(n),
+                al = in(reg) alpha.to_bits(),
+                r0 = out(reg) _,
+                r1 = out(reg) _,
+                r2 = out(reg) _,
+                r3 = out(reg) _,
+                out("s0") _,
+                out("s1") _,
+                out("s2") _,
+                out("s3") _,
+                out("s4") _,
+                out("s5") _,
+                out("s6") _,
+                out("s7") _,
+                out("s8") _,
+                options(nostack),
+            );
+        }
+    }
+    #[cfg(not(all(target_arch = "arm", any(feature = "arm-fpv5", target_abi = "eabihf"))))]
     for ((a, s), o) in acc.iter().zip(scales).zip(out.iter_mut()).take(n) {
         for ((o, &a), &s) in o.iter_mut().zip(a).zip(s) {
             let v = a as f32 * s;
@@ -1095,7 +1197,8 @@ pub(super) const fn kernels() -> super::Kernels {
     k.i16 = matvec_i16;
     k.i8mm = matmat_i8;
     k.pool = pool_i8;
-    #[cfg(feature = "arm-fpv5")]
+    // The FPv5 form with `arm-fpv5`, else the FPv4 form where there is an FPU.
+    #[cfg(any(feature = "arm-fpv5", target_abi = "eabihf"))]
     {
         k.requant = requantize_i8;
     }
