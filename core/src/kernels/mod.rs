@@ -24,8 +24,8 @@
 //!   [`Isa::kernels`], so tests and benchmarks run every kernel this CPU has.
 //!
 //! Kernel sets: [`reference`](mod@reference); on x86_64 (module `x86`) AVX2, AVX-VNNI,
-//! AVX-512BW and AVX-512 VNNI; on Cortex-M with the `arm-dsp` feature, [`arm`] (and its
-//! FPv5 requantization with `arm-fpv5`).
+//! AVX-512BW and AVX-512 VNNI; on Cortex-M with the `arm-dsp` feature, [`arm`] (with its
+//! FPv5 requantization with `arm-fpv5`, else its FPv4 one on a core with an FPU).
 //!
 //! # Cortex-M
 //!
@@ -373,8 +373,9 @@ impl Kernels {
 
     /// [`reference::requantize_i8`], bit-exact for finite scales (what
     /// [`Model::parse`](crate::model::Model::parse) accepts), compiled for this table's
-    /// registers. With a NaN product (a NaN scale, or an infinite one times 0) the Cortex-M7
-    /// table (`arm-fpv5`) gives 0 where the reference gives -128.
+    /// registers. With a NaN product (a NaN scale, or an infinite one times 0) the Cortex-M
+    /// tables with an FPU (`arm-fpv5`, or an `eabihf` target) give 0 where the reference gives
+    /// -128.
     #[inline]
     pub fn requantize_i8(&self, acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut [i8]) {
         (self.requant)(acc, scales, leaky, out)
