@@ -1018,36 +1018,88 @@ pub fn requantize_i8(acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut 
     super::reference::requantize_i8(a_rest, s_rest, leaky, o_rest);
 }
 
+/// The requantization loop of [`requantize_fours`], four outputs per pass, written once for
+/// both FPUs: `VLDMIA` of four accumulators into `s0–s3` and four scales into `s4–s7`, `VCVT`
+/// and the scale's `VMUL`, then `$step` (the LeakyReLU and the rounding to integers in
+/// `s0–s3`), two `VMOV`s of two results each, `SSAT #8` and `STRB`, until the accumulator
+/// pointer reaches the end. `$setup` runs once before the loop; `$operand`s are the slope's
+/// and any further clobber.
+#[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+macro_rules! requantize_loop {
+    ($acc:expr, $scales:expr, $out:expr, $n:expr, [$($setup:literal),*], [$($step:literal),*],
+     $($operand:tt)*) => {
+        core::arch::asm!(
+            $($setup,)*
+            "2:",
+            "vldmia {pa}!, {{s0-s3}}",
+            "vldmia {ps}!, {{s4-s7}}",
+            "vcvt.f32.s32 s0, s0",
+            "vcvt.f32.s32 s1, s1",
+            "vcvt.f32.s32 s2, s2",
+            "vcvt.f32.s32 s3, s3",
+            "vmul.f32 s0, s0, s4",
+            "vmul.f32 s1, s1, s5",
+            "vmul.f32 s2, s2, s6",
+            "vmul.f32 s3, s3, s7",
+            $($step,)*
+            "vmov {r0}, {r1}, s0, s1",
+            "vmov {r2}, {r3}, s2, s3",
+            "ssat {r0}, #8, {r0}",
+            "ssat {r1}, #8, {r1}",
+            "ssat {r2}, #8, {r2}",
+            "ssat {r3}, #8, {r3}",
+            "strb {r0}, [{po}], #1",
+            "strb {r1}, [{po}], #1",
+            "strb {r2}, [{po}], #1",
+            "strb {r3}, [{po}], #1",
+            "cmp {pa}, {end}",
+            "bne 2b",
+            pa = inout(reg) $acc.as_ptr() => _,
+            ps = inout(reg) $scales.as_ptr() => _,
+            po = inout(reg) $out.as_mut_ptr() => _,
+            end = in(reg) $acc.as_ptr().wrapping_add($n),
+            r0 = out(reg) _,
+            r1 = out(reg) _,
+            r2 = out(reg) _,
+            r3 = out(reg) _,
+            out("s0") _,
+            out("s1") _,
+            out("s2") _,
+            out("s3") _,
+            out("s4") _,
+            out("s5") _,
+            out("s6") _,
+            out("s7") _,
+            $($operand)*
+            options(nostack),
+        )
+    };
+}
+
 /// [`requantize_i8`]'s four-output steps over the shortest of the three slices.
 #[inline(always)]
 fn requantize_fours(acc: &[[i32; 4]], scales: &[[f32; 4]], alpha: f32, out: &mut [[i8; 4]]) {
     let n = acc.len().min(scales.len()).min(out.len());
+    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+    if n == 0 {
+        return;
+    }
     #[cfg(all(target_arch = "arm", feature = "arm-fpv5"))]
-    {
-        if n == 0 {
-            return;
-        }
-        // One step: four accumulators and four scales loaded with `VLDMIA`, each output's
-        // f32 arithmetic, two `VMOV`s of two results each, `SSAT` and `STRB`.
-        // SAFETY: the loop reads `n` steps of 16 bytes from `acc` and from `scales` and writes
-        // `n` steps of 4 bytes to `out` (`n` is the shortest length; `VLDMIA` needs the 4-byte
-        // alignment that `i32` and `f32` give, `STRB` none), stopping when the accumulator
-        // pointer reaches `end`; it writes only the named registers and `out`. `VMAXNM` and
-        // `VCVTN` exist on an FPv5 FPU, which the `arm-fpv5` feature promises (the `sreg`
-        // operand needs the double-precision FPU's `vfp2` feature: without it the build fails).
-        unsafe {
-            core::arch::asm!(
-                "2:",
-                "vldmia {pa}!, {{s0-s3}}",
-                "vldmia {ps}!, {{s4-s7}}",
-                "vcvt.f32.s32 s0, s0",
-                "vcvt.f32.s32 s1, s1",
-                "vcvt.f32.s32 s2, s2",
-                "vcvt.f32.s32 s3, s3",
-                "vmul.f32 s0, s0, s4",
-                "vmul.f32 s1, s1, s5",
-                "vmul.f32 s2, s2, s6",
-                "vmul.f32 s3, s3, s7",
+    // Per output: the LeakyReLU as `VMAXNM(v, α·v)`, then `VCVTN`.
+    // SAFETY: the loop reads `n` steps of 16 bytes from `acc` and from `scales` and writes
+    // `n` steps of 4 bytes to `out` (`n` is the shortest length; `VLDMIA` needs the 4-byte
+    // alignment that `i32` and `f32` give, `STRB` none), stopping when the accumulator
+    // pointer reaches `end`; it writes only the named registers and `out`. `VMAXNM` and
+    // `VCVTN` exist on an FPv5 FPU, which the `arm-fpv5` feature promises (the `sreg`
+    // operand needs the double-precision FPU's `vfp2` feature: without it the build fails).
+    unsafe {
+        requantize_loop!(
+            acc,
+            scales,
+            out,
+            n,
+            [],
+            [
                 "vmul.f32 s4, s0, {al}",
                 "vmul.f32 s5, s1, {al}",
                 "vmul.f32 s6, s2, {al}",
@@ -1059,69 +1111,29 @@ fn requantize_fours(acc: &[[i32; 4]], scales: &[[f32; 4]], alpha: f32, out: &mut
                 "vcvtn.s32.f32 s0, s0",
                 "vcvtn.s32.f32 s1, s1",
                 "vcvtn.s32.f32 s2, s2",
-                "vcvtn.s32.f32 s3, s3",
-                "vmov {r0}, {r1}, s0, s1",
-                "vmov {r2}, {r3}, s2, s3",
-                "ssat {r0}, #8, {r0}",
-                "ssat {r1}, #8, {r1}",
-                "ssat {r2}, #8, {r2}",
-                "ssat {r3}, #8, {r3}",
-                "strb {r0}, [{po}], #1",
-                "strb {r1}, [{po}], #1",
-                "strb {r2}, [{po}], #1",
-                "strb {r3}, [{po}], #1",
-                "cmp {pa}, {end}",
-                "bne 2b",
-                pa = inout(reg) acc.as_ptr() => _,
-                ps = inout(reg) scales.as_ptr() => _,
-                po = inout(reg) out.as_mut_ptr() => _,
-                end = in(reg) acc.as_ptr().wrapping_add(n),
-                al = in(sreg) alpha,
-                r0 = out(reg) _,
-                r1 = out(reg) _,
-                r2 = out(reg) _,
-                r3 = out(reg) _,
-                out("s0") _,
-                out("s1") _,
-                out("s2") _,
-                out("s3") _,
-                out("s4") _,
-                out("s5") _,
-                out("s6") _,
-                out("s7") _,
-                options(nostack),
-            );
-        }
+                "vcvtn.s32.f32 s3, s3"
+            ],
+            al = in(sreg) alpha,
+        );
     }
     #[cfg(all(target_arch = "arm", target_abi = "eabihf", not(feature = "arm-fpv5")))]
-    {
-        if n == 0 {
-            return;
-        }
-        // One step: four accumulators and four scales loaded with `VLDMIA`, per output a
-        // `VCVT`, the scale's `VMUL`, the LeakyReLU's `VCMP`, `VMRS` and conditional `VMUL`,
-        // and `VCVTR`; two `VMOV`s of two results each, `SSAT` and `STRB`. α travels in a
-        // core register: Rust's inline assembly takes FPU operands only on a double-precision
-        // FPU, but single-precision registers may be named as clobbers.
-        // SAFETY: as the FPv5 loop above: `n` steps of 16 bytes read from `acc` and `scales`
-        // (4-byte aligned for `VLDMIA`), `n` steps of 4 bytes written to `out`, until the
-        // accumulator pointer reaches `end`; only the named registers, the flags and `out`
-        // are written. Every instruction is VFPv2 (an `eabihf` target has such an FPU) or
-        // Armv7-M Thumb-2 (`SSAT`, `IT`).
-        unsafe {
-            core::arch::asm!(
-                "vmov s8, {al}",
-                "2:",
-                "vldmia {pa}!, {{s0-s3}}",
-                "vldmia {ps}!, {{s4-s7}}",
-                "vcvt.f32.s32 s0, s0",
-                "vcvt.f32.s32 s1, s1",
-                "vcvt.f32.s32 s2, s2",
-                "vcvt.f32.s32 s3, s3",
-                "vmul.f32 s0, s0, s4",
-                "vmul.f32 s1, s1, s5",
-                "vmul.f32 s2, s2, s6",
-                "vmul.f32 s3, s3, s7",
+    // Per output: the reference's `v < 0` compare (`VCMP`, `VMRS`) and a conditional `VMUL`
+    // by α, then `VCVTR`. α travels in a core register: Rust's inline assembly takes FPU
+    // operands only on a double-precision FPU, but single-precision registers may be named
+    // as clobbers.
+    // SAFETY: as the FPv5 loop: `n` steps of 16 bytes read from `acc` and `scales` (4-byte
+    // aligned for `VLDMIA`), `n` steps of 4 bytes written to `out`, until the accumulator
+    // pointer reaches `end`; only the named registers, the flags and `out` are written.
+    // Every instruction is VFPv2 (an `eabihf` target has such an FPU) or Armv7-M Thumb-2
+    // (`SSAT`, `IT`).
+    unsafe {
+        requantize_loop!(
+            acc,
+            scales,
+            out,
+            n,
+            ["vmov s8, {al}"],
+            [
                 "vcmp.f32 s0, #0",
                 "vmrs APSR_nzcv, fpscr",
                 "it mi",
@@ -1141,40 +1153,11 @@ fn requantize_fours(acc: &[[i32; 4]], scales: &[[f32; 4]], alpha: f32, out: &mut
                 "vcvtr.s32.f32 s0, s0",
                 "vcvtr.s32.f32 s1, s1",
                 "vcvtr.s32.f32 s2, s2",
-                "vcvtr.s32.f32 s3, s3",
-                "vmov {r0}, {r1}, s0, s1",
-                "vmov {r2}, {r3}, s2, s3",
-                "ssat {r0}, #8, {r0}",
-                "ssat {r1}, #8, {r1}",
-                "ssat {r2}, #8, {r2}",
-                "ssat {r3}, #8, {r3}",
-                "strb {r0}, [{po}], #1",
-                "strb {r1}, [{po}], #1",
-                "strb {r2}, [{po}], #1",
-                "strb {r3}, [{po}], #1",
-                "cmp {pa}, {end}",
-                "bne 2b",
-                pa = inout(reg) acc.as_ptr() => _,
-                ps = inout(reg) scales.as_ptr() => _,
-                po = inout(reg) out.as_mut_ptr() => _,
-                end = in(reg) acc.as_ptr().wrapping_add(n),
-                al = in(reg) alpha.to_bits(),
-                r0 = out(reg) _,
-                r1 = out(reg) _,
-                r2 = out(reg) _,
-                r3 = out(reg) _,
-                out("s0") _,
-                out("s1") _,
-                out("s2") _,
-                out("s3") _,
-                out("s4") _,
-                out("s5") _,
-                out("s6") _,
-                out("s7") _,
-                out("s8") _,
-                options(nostack),
-            );
-        }
+                "vcvtr.s32.f32 s3, s3"
+            ],
+            al = in(reg) alpha.to_bits(),
+            out("s8") _,
+        );
     }
     #[cfg(not(all(target_arch = "arm", any(feature = "arm-fpv5", target_abi = "eabihf"))))]
     for ((a, s), o) in acc.iter().zip(scales).zip(out.iter_mut()).take(n) {
