@@ -283,19 +283,23 @@ impl Cpu {
     }
 }
 
-/// The rustflags of `firmware/.cargo/config.toml` (its one `rustflags = [...]` list), with the
-/// target CPU replaced by `cpu`'s.
+/// The rustflags of `firmware/.cargo/config.toml` (its one `rustflags = [...]` list of quoted
+/// flags without commas or `#`; comments dropped first), with the target CPU replaced by
+/// `cpu`'s.
 fn firmware_rustflags(cpu: Cpu) -> Vec<String> {
     let config = std::fs::read_to_string(firmware_dir().join(".cargo/config.toml")).unwrap();
-    let list = config
+    let code: String = config
+        .lines()
+        .map(|l| l.split('#').next().unwrap_or(""))
+        .collect::<Vec<_>>()
+        .join("\n");
+    let list = code
         .split_once("rustflags = [")
         .and_then(|(_, rest)| rest.split_once(']'))
         .expect("firmware/.cargo/config.toml has a rustflags list")
         .0;
     let flags: Vec<String> = list
-        .lines()
-        .map(|l| l.split('#').next().unwrap_or(""))
-        .flat_map(|l| l.split(','))
+        .split(',')
         .map(|f| f.trim().trim_matches('"'))
         .filter(|f| !f.is_empty())
         .map(|f| {

@@ -90,8 +90,9 @@ pub fn requantize(acc: i32, scale: f32, leaky: Option<f32>) -> i8 {
     // Same value as `round_clamp(v, -128.0, 127.0)`: clamp into the exact range, round,
     // saturate. [`at_least`]/[`at_most`]: one instruction each on x86 (`maxps`/`minps`), a
     // compare and a select on the M4's FPv4 (`f32::max` called `fmaxf` there); a NaN (an
-    // infinite scale times 0) gives -129 and saturates to -128 instead of passing its bits on. (`Model::parse` refuses non-finite scales; the
-    // Cortex-M7 kernel, `kernels::arm::requantize_i8`, relies on it.)
+    // infinite scale times 0) gives -129 and saturates to -128 instead of passing its bits on.
+    // (`Model::parse` refuses non-finite scales; the Cortex-M kernels'
+    // `kernels::arm::requantize_i8`, FPv5 and FPv4, rely on it.)
     round_to_i32(at_most(at_least(v, -129.0), 128.0)).clamp(-128, 127) as i8
 }
 

@@ -249,10 +249,12 @@ pub fn kernels(k: &Kernels) -> Report {
             }
         }
     }
-    // Requantization (VCVT, VMUL, VMAXNM, VCVTN, SSAT): every accumulator in ±2^13 at eight
-    // scales, and random ones over the whole i32 range at random scales, each with
-    // no LeakyReLU, PyTorch's slope, the max form's edges 0 and 1, and a slope it leaves to
-    // the reference; lengths 1 to 4 and 37 (the four-output steps and their tails).
+    // Requantization (VCVT, VMUL, then VMAXNM and VCVTN on the M7's FPv5, or VCMP, a
+    // conditional VMUL and VCVTR on an M4's FPv4; SSAT): every accumulator in ±2^13 at eight
+    // scales, and random ones over the whole i32 range at random scales, each with no
+    // LeakyReLU, PyTorch's slope, the max form's edges 0 and 1, and a slope it leaves to the
+    // reference (on FPv4 slope 0 too); lengths 1 to 4 and 37 (the four-output steps and their
+    // tails).
     let mut check_requant = |acc: &[i32], scales: &[f32]| {
         for leaky in [None, Some(0.01f32), Some(0.0), Some(1.0), Some(1.5)] {
             let (mut got, mut want) = ([0i8; 64], [0i8; 64]);

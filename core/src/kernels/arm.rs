@@ -975,12 +975,14 @@ pub fn pool_i8(max: &mut [i8], sum: &mut [i32], y: &[i8]) {
 /// Whether [`requantize_i8`] runs its FPv4 form (an FPU without FPv5's `VMAXNM`).
 const FPV4_REQUANT: bool = cfg!(all(
     target_arch = "arm",
+    feature = "arm-dsp",
     target_abi = "eabihf",
     not(feature = "arm-fpv5")
 ));
 
 /// [`super::reference::requantize_i8`], bit-exact, four outputs per pass, in inline assembly
-/// on a Cortex-M with a hardware FPU (`target_abi = "eabihf"`), everywhere else emulated.
+/// on a Cortex-M with the DSP extension (`arm-dsp`) and a hardware FPU (`target_abi =
+/// "eabihf"`), everywhere else emulated.
 ///
 /// With the `arm-fpv5` feature (the Cortex-M7's FPv5 FPU), per output: `VCVT` to f32, `VMUL`
 /// by the scale, the LeakyReLU as `VMAXNM(v, α·v)`, then `VCVTN` (round to nearest, ties to
@@ -989,8 +991,9 @@ const FPV4_REQUANT: bool = cfg!(all(
 /// rounding. The max form equals `v < 0 ? α·v : v` for slopes in `[0, 1]` (`α = 1` is no
 /// LeakyReLU); a layer with another slope takes the reference.
 ///
-/// Without it (the FPv4-SP of a Cortex-M4, the single-precision FPv5 of an M33, which have no
-/// `VMAXNM`, or no `VCVTN` on FPv4): the LeakyReLU is the reference's own compare and a
+/// Without it (the FPv4-SP of a Cortex-M4, which has neither `VMAXNM` nor `VCVTN`; the
+/// single-precision FPv5 of an M33 has both, but Rust's inline assembly takes FPU operands
+/// only on a double-precision FPU): the LeakyReLU is the reference's own compare and a
 /// conditional `VMUL`, and the rounding `VCVTR`, which rounds in the FPSCR's mode: round to
 /// nearest, ties to even, the default that Rust's floating point assumes everywhere (the
 /// reference's magic-number rounding relies on it as well). About 10.5 instructions per output
@@ -1024,7 +1027,10 @@ pub fn requantize_i8(acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut 
 /// `s0–s3`), two `VMOV`s of two results each, `SSAT #8` and `STRB`, until the accumulator
 /// pointer reaches the end. `$setup` runs once before the loop; `$operand`s are the slope's
 /// and any further clobber.
-#[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+#[cfg(all(
+    target_arch = "arm",
+    any(feature = "arm-fpv5", all(feature = "arm-dsp", target_abi = "eabihf"))
+))]
 macro_rules! requantize_loop {
     ($acc:expr, $scales:expr, $out:expr, $n:expr, [$($setup:literal),*], [$($step:literal),*],
      $($operand:tt)*) => {
@@ -1080,7 +1086,10 @@ macro_rules! requantize_loop {
 #[inline(always)]
 fn requantize_fours(acc: &[[i32; 4]], scales: &[[f32; 4]], alpha: f32, out: &mut [[i8; 4]]) {
     let n = acc.len().min(scales.len()).min(out.len());
-    #[cfg(all(target_arch = "arm", target_abi = "eabihf"))]
+    #[cfg(all(
+        target_arch = "arm",
+        any(feature = "arm-fpv5", all(feature = "arm-dsp", target_abi = "eabihf"))
+    ))]
     if n == 0 {
         return;
     }
@@ -1089,7 +1098,8 @@ fn requantize_fours(acc: &[[i32; 4]], scales: &[[f32; 4]], alpha: f32, out: &mut
     // SAFETY: the loop reads `n` steps of 16 bytes from `acc` and from `scales` and writes
     // `n` steps of 4 bytes to `out` (`n` is the shortest length; `VLDMIA` needs the 4-byte
     // alignment that `i32` and `f32` give, `STRB` none), stopping when the accumulator
-    // pointer reaches `end`; it writes only the named registers and `out`. `VMAXNM` and
+    // pointer reaches `end`; it writes only the named registers, the flags (and the FPSCR's
+    // cumulative exception bits) and `out`. `VMAXNM` and
     // `VCVTN` exist on an FPv5 FPU, which the `arm-fpv5` feature promises (the `sreg`
     // operand needs the double-precision FPU's `vfp2` feature: without it the build fails).
     unsafe {
@@ -1116,14 +1126,20 @@ fn requantize_fours(acc: &[[i32; 4]], scales: &[[f32; 4]], alpha: f32, out: &mut
             al = in(sreg) alpha,
         );
     }
-    #[cfg(all(target_arch = "arm", target_abi = "eabihf", not(feature = "arm-fpv5")))]
+    #[cfg(all(
+        target_arch = "arm",
+        feature = "arm-dsp",
+        target_abi = "eabihf",
+        not(feature = "arm-fpv5")
+    ))]
     // Per output: the reference's `v < 0` compare (`VCMP`, `VMRS`) and a conditional `VMUL`
     // by α, then `VCVTR`. α travels in a core register: Rust's inline assembly takes FPU
     // operands only on a double-precision FPU, but single-precision registers may be named
     // as clobbers.
     // SAFETY: as the FPv5 loop: `n` steps of 16 bytes read from `acc` and `scales` (4-byte
     // aligned for `VLDMIA`), `n` steps of 4 bytes written to `out`, until the accumulator
-    // pointer reaches `end`; only the named registers, the flags and `out` are written.
+    // pointer reaches `end`; only the named registers, the flags (and the FPSCR's cumulative
+    // exception bits) and `out` are written.
     // Every instruction is VFPv2 (an `eabihf` target has such an FPU) or Armv7-M Thumb-2
     // (`SSAT`, `IT`).
     unsafe {
@@ -1159,7 +1175,10 @@ fn requantize_fours(acc: &[[i32; 4]], scales: &[[f32; 4]], alpha: f32, out: &mut
             out("s8") _,
         );
     }
-    #[cfg(not(all(target_arch = "arm", any(feature = "arm-fpv5", target_abi = "eabihf"))))]
+    #[cfg(not(all(
+        target_arch = "arm",
+        any(feature = "arm-fpv5", all(feature = "arm-dsp", target_abi = "eabihf"))
+    )))]
     for ((a, s), o) in acc.iter().zip(scales).zip(out.iter_mut()).take(n) {
         for ((o, &a), &s) in o.iter_mut().zip(a).zip(s) {
             let v = a as f32 * s;

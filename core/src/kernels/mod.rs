@@ -35,7 +35,7 @@
 //! `cfg(target_feature)` and the intrinsics are unstable; thumbv6m/v7m/v8m.base lack the
 //! instructions, so a firmware opts in), where [`Kernels::best`] picks it. Elsewhere the same
 //! kernel runs on emulated instructions, so its blocking and tails are tested on any host; the
-//! real instructions are tested on a Cortex-M7 under QEMU. The i16 first layer needs nothing:
+//! real instructions are tested on a Cortex-M7 and a Cortex-M4 under QEMU. The i16 first layer needs nothing:
 //! LLVM's ARMParallelDSP pass already turns the reference i16 loop into `SMLAD`.
 //!
 //! # Contract
