@@ -50,8 +50,8 @@ impl HeadValue for i32 {
 /// special cases): the firmware's confidences went from 0.75 M to 0.31 M instructions per
 /// window on the Cortex-M7 (96 → 40 per logit).
 ///
-/// `x = k·ln 2 + r` with `k` the integer nearest `x·log₂e` (found by the rounding that adding
-/// `1.5·2^23` does) and `r = x − k·ln 2` in two steps (Cody–Waite: `ln 2`'s leading 9 bits make
+/// `x = k·ln 2 + r` with `k` the integer nearest `x·log₂e` (the requantization's magic-number
+/// rounding, [`crate::quant::round_to_i32`]) and `r = x − k·ln 2` in two steps (Cody–Waite: `ln 2`'s leading 9 bits make
 /// `k·LN2_HI` exact for `|k| < 2^15`), so `|r| ≤ 0.35`; `e^r` is its Taylor polynomial of
 /// degree 7 (truncation below `0.35^8 / 8! < 5.5·10^−9`, about a tenth of an ulp), and `2^k`
 /// is built from its exponent bits (in two exact steps where `k = 128`). Results below the
@@ -84,15 +84,16 @@ pub fn exp(x: f32) -> f32 {
 /// (`k` in [−126, 128]).
 #[inline(always)]
 fn exp_parts(x: f32) -> (f32, i32) {
-    /// `1.5 · 2^23`: adding it to a value below `2^22` in magnitude rounds it to an integer
-    /// (half to even), which then sits in the low significand bits.
-    const SHIFTER: f32 = 12_582_912.0;
     /// `ln 2` to 9 significant bits (355/512) and the rest.
     const LN2_HI: f32 = 0.693_359_4;
     const LN2_LO: f32 = -2.121_944_4e-4;
-    let t = x * core::f32::consts::LOG2_E + SHIFTER;
-    let k = (t.to_bits() as i32).wrapping_sub(SHIFTER.to_bits() as i32);
-    let kf = t - SHIFTER;
+    // The integer nearest `x·log₂e` (half to even; `|x·log₂e| ≤ 128`), as an i32 and as an
+    // f32: both from the one sum with the magic number (the compiler computes it once).
+    let y = x * core::f32::consts::LOG2_E;
+    let (k, kf) = (
+        crate::quant::round_to_i32(y),
+        crate::quant::round_half_even(y),
+    );
     let r = (x - kf * LN2_HI) - kf * LN2_LO;
     // 1 + r + r²/2! + … + r⁷/7!, by Horner.
     let mut p = 1.0 / 5040.0;
@@ -233,13 +234,13 @@ mod tests {
         assert_eq!(exp(88.73), f32::INFINITY);
         assert_eq!(exp(f32::INFINITY), f32::INFINITY);
         assert!(exp(f32::NAN).is_nan());
-        // The top of the range, where the half is squared.
+        // The top of the range (`k = 128`, scaled in two steps).
         let top = exp(88.72);
         assert!(
-            top.is_finite() && ulps(top, libm::exp(88.72f32.into())) <= 4,
+            top.is_finite() && ulps(top, libm::exp(88.72f32.into())) <= 1,
             "{top}"
         );
-        // Monotone across a step of `k` and across the squared range's start.
+        // Monotone across a step of `k` and across the start of the two-step scaling.
         for x in [0.5 * core::f32::consts::LN_2, 88.0] {
             let b = x.to_bits();
             assert!(exp(f32::from_bits(b - 1)) <= exp(x) && exp(x) <= exp(f32::from_bits(b + 1)));
