@@ -1025,8 +1025,9 @@ pub fn requantize_i8(acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut 
 /// both FPUs: `VLDMIA` of four accumulators into `s0–s3` and four scales into `s4–s7`, `VCVT`
 /// and the scale's `VMUL`, then `$step` (the LeakyReLU and the rounding to integers in
 /// `s0–s3`), two `VMOV`s of two results each, `SSAT #8` and `STRB`, until the accumulator
-/// pointer reaches the end. `$setup` runs once before the loop; `$operand`s are the slope's
-/// and any further clobber.
+/// pointer reaches the end; nothing when `$n` is 0 (the loop tests its end only after a
+/// pass). `$setup` runs once before the loop; `$operand`s are the slope's and any further
+/// clobber.
 #[cfg(all(
     target_arch = "arm",
     any(feature = "arm-fpv5", all(feature = "arm-dsp", target_abi = "eabihf"))
@@ -1034,51 +1035,53 @@ pub fn requantize_i8(acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &mut 
 macro_rules! requantize_loop {
     ($acc:expr, $scales:expr, $out:expr, $n:expr, [$($setup:literal),*], [$($step:literal),*],
      $($operand:tt)*) => {
-        core::arch::asm!(
-            $($setup,)*
-            "2:",
-            "vldmia {pa}!, {{s0-s3}}",
-            "vldmia {ps}!, {{s4-s7}}",
-            "vcvt.f32.s32 s0, s0",
-            "vcvt.f32.s32 s1, s1",
-            "vcvt.f32.s32 s2, s2",
-            "vcvt.f32.s32 s3, s3",
-            "vmul.f32 s0, s0, s4",
-            "vmul.f32 s1, s1, s5",
-            "vmul.f32 s2, s2, s6",
-            "vmul.f32 s3, s3, s7",
-            $($step,)*
-            "vmov {r0}, {r1}, s0, s1",
-            "vmov {r2}, {r3}, s2, s3",
-            "ssat {r0}, #8, {r0}",
-            "ssat {r1}, #8, {r1}",
-            "ssat {r2}, #8, {r2}",
-            "ssat {r3}, #8, {r3}",
-            "strb {r0}, [{po}], #1",
-            "strb {r1}, [{po}], #1",
-            "strb {r2}, [{po}], #1",
-            "strb {r3}, [{po}], #1",
-            "cmp {pa}, {end}",
-            "bne 2b",
-            pa = inout(reg) $acc.as_ptr() => _,
-            ps = inout(reg) $scales.as_ptr() => _,
-            po = inout(reg) $out.as_mut_ptr() => _,
-            end = in(reg) $acc.as_ptr().wrapping_add($n),
-            r0 = out(reg) _,
-            r1 = out(reg) _,
-            r2 = out(reg) _,
-            r3 = out(reg) _,
-            out("s0") _,
-            out("s1") _,
-            out("s2") _,
-            out("s3") _,
-            out("s4") _,
-            out("s5") _,
-            out("s6") _,
-            out("s7") _,
-            $($operand)*
-            options(nostack),
-        )
+        if $n > 0 {
+            core::arch::asm!(
+                $($setup,)*
+                "2:",
+                "vldmia {pa}!, {{s0-s3}}",
+                "vldmia {ps}!, {{s4-s7}}",
+                "vcvt.f32.s32 s0, s0",
+                "vcvt.f32.s32 s1, s1",
+                "vcvt.f32.s32 s2, s2",
+                "vcvt.f32.s32 s3, s3",
+                "vmul.f32 s0, s0, s4",
+                "vmul.f32 s1, s1, s5",
+                "vmul.f32 s2, s2, s6",
+                "vmul.f32 s3, s3, s7",
+                $($step,)*
+                "vmov {r0}, {r1}, s0, s1",
+                "vmov {r2}, {r3}, s2, s3",
+                "ssat {r0}, #8, {r0}",
+                "ssat {r1}, #8, {r1}",
+                "ssat {r2}, #8, {r2}",
+                "ssat {r3}, #8, {r3}",
+                "strb {r0}, [{po}], #1",
+                "strb {r1}, [{po}], #1",
+                "strb {r2}, [{po}], #1",
+                "strb {r3}, [{po}], #1",
+                "cmp {pa}, {end}",
+                "bne 2b",
+                pa = inout(reg) $acc.as_ptr() => _,
+                ps = inout(reg) $scales.as_ptr() => _,
+                po = inout(reg) $out.as_mut_ptr() => _,
+                end = in(reg) $acc.as_ptr().wrapping_add($n),
+                r0 = out(reg) _,
+                r1 = out(reg) _,
+                r2 = out(reg) _,
+                r3 = out(reg) _,
+                out("s0") _,
+                out("s1") _,
+                out("s2") _,
+                out("s3") _,
+                out("s4") _,
+                out("s5") _,
+                out("s6") _,
+                out("s7") _,
+                $($operand)*
+                options(nostack),
+            )
+        }
     };
 }
 
@@ -1086,22 +1089,15 @@ macro_rules! requantize_loop {
 #[inline(always)]
 fn requantize_fours(acc: &[[i32; 4]], scales: &[[f32; 4]], alpha: f32, out: &mut [[i8; 4]]) {
     let n = acc.len().min(scales.len()).min(out.len());
-    #[cfg(all(
-        target_arch = "arm",
-        any(feature = "arm-fpv5", all(feature = "arm-dsp", target_abi = "eabihf"))
-    ))]
-    if n == 0 {
-        return;
-    }
     #[cfg(all(target_arch = "arm", feature = "arm-fpv5"))]
     // Per output: the LeakyReLU as `VMAXNM(v, α·v)`, then `VCVTN`.
-    // SAFETY: the loop reads `n` steps of 16 bytes from `acc` and from `scales` and writes
-    // `n` steps of 4 bytes to `out` (`n` is the shortest length; `VLDMIA` needs the 4-byte
-    // alignment that `i32` and `f32` give, `STRB` none), stopping when the accumulator
-    // pointer reaches `end`; it writes only the named registers, the flags (and the FPSCR's
-    // cumulative exception bits) and `out`. `VMAXNM` and
-    // `VCVTN` exist on an FPv5 FPU, which the `arm-fpv5` feature promises (the `sreg`
-    // operand needs the double-precision FPU's `vfp2` feature: without it the build fails).
+    // SAFETY: the loop (run only for `n > 0`) reads `n` steps of 16 bytes from `acc` and from
+    // `scales` and writes `n` steps of 4 bytes to `out` (`n` is the shortest length; `VLDMIA`
+    // needs the 4-byte alignment that `i32` and `f32` give, `STRB` none), stopping when the
+    // accumulator pointer reaches `end`; it writes only the named registers, the flags (and
+    // the FPSCR's cumulative exception bits) and `out`. `VMAXNM` and `VCVTN` exist on an FPv5
+    // FPU, which the `arm-fpv5` feature promises (the `sreg` operand needs the
+    // double-precision FPU's `vfp2` feature: without it the build fails).
     unsafe {
         requantize_loop!(
             acc,
