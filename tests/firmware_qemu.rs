@@ -737,15 +737,11 @@ fn run_and_compare(cpu: Cpu) -> Checked {
 
 #[test]
 fn firmware_matches_the_host_core_under_qemu() {
-    let Checked {
-        elf,
-        text,
-        firmware,
-        blob,
-    } = run_and_compare(Cpu::M7);
+    let checked = run_and_compare(Cpu::M7);
+    let elf = &checked.elf;
 
     // No heap: no heap section or allocator symbol in the image, nothing heap-like in the map.
-    let image = image_budget(&elf).unwrap();
+    let image = image_budget(elf).unwrap();
     assert!(image.heap.is_empty(), "heap in the image: {:?}", image.heap);
     let map = std::fs::read_to_string(elf.with_file_name("evpose-firmware.map")).unwrap();
     for needle in [".heap", "__rust_alloc", "__rg_alloc"] {
@@ -786,21 +782,15 @@ fn firmware_matches_the_host_core_under_qemu() {
         gone.len()
     );
 
-    print_figures(Cpu::M7, &elf, &text, &firmware, &blob);
+    print_figures(Cpu::M7, &checked);
 }
 
 /// The figures (goals, not asserts): see the README's "Firmware (Cortex-M7)" section.
-fn print_figures(
-    cpu: Cpu,
-    elf: &Path,
-    text: &str,
-    firmware: &[(WindowResult, String)],
-    blob: &AlignedBlob,
-) {
-    eprintln!("firmware output ({cpu:?}):\n{text}");
-    let image = image_budget(elf).unwrap();
-    let model = Model::parse(blob.bytes()).unwrap();
-    for (i, (_, instr)) in firmware.iter().enumerate() {
+fn print_figures(cpu: Cpu, c: &Checked) {
+    eprintln!("firmware output ({cpu:?}):\n{}", c.text);
+    let image = image_budget(&c.elf).unwrap();
+    let model = Model::parse(c.blob.bytes()).unwrap();
+    for (i, (_, instr)) in c.firmware.iter().enumerate() {
         let infer: u64 = field(instr, "infer");
         let macs =
             model.macs_per_point() * model.input_points() as u64 + model.macs_after_pooling();
@@ -824,6 +814,5 @@ fn print_figures(
 /// (`firmware/measured.json`'s `*_without_arm_fpv5`).
 #[test]
 fn cortex_m4_build_matches_the_host_core_under_qemu() {
-    let c = run_and_compare(Cpu::M4);
-    print_figures(Cpu::M4, &c.elf, &c.text, &c.firmware, &c.blob);
+    print_figures(Cpu::M4, &run_and_compare(Cpu::M4));
 }
