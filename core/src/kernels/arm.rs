@@ -997,7 +997,7 @@ const FPV4_REQUANT: bool = cfg!(all(
 /// conditional `VMUL`, and the rounding `VCVTR`, which rounds in the FPSCR's mode: round to
 /// nearest, ties to even, the default that Rust's floating point assumes everywhere (the
 /// reference's magic-number rounding relies on it as well). About 10.5 instructions per output
-/// against about 24 for the reference on the M4. Slopes in `(0, 1]` only: an infinite `v`
+/// against about 24 for the reference on the M4 (both counted in the M4 image's code). Slopes in `(0, 1]` only: an infinite `v`
 /// times `α = 0` is NaN, which `VCVTR` would turn into 0 where the reference saturates it.
 ///
 /// Both need finite scales, which [`crate::model::Model::parse`] checks: then `v` is never NaN
