@@ -30,6 +30,13 @@ class Dataset:
                        if (path / "person.npy").exists() else torch.ones(n))
         self.camera = np.asarray(load("camera.npy")[:n])
 
+    def to(self, device):
+        """Moves the arrays to `device` (e.g. the GPU, where batching then happens too: the
+        random draws stay on the CPU generator, so a seed gives the same batches anywhere)."""
+        for name in ("points", "label2d", "mask", "person"):
+            setattr(self, name, getattr(self, name).to(device))
+        return self
+
     @staticmethod
     def concat(parts):
         """One dataset of several (same point count)."""
@@ -57,23 +64,25 @@ class Dataset:
         drawn from [-shift, shift] per axis (joints that leave the sensor get weight 0);
         `flip` mirrors half the samples left-right (x -> W-1-x) and swaps the left and right
         joints, so that a left-arm movement teaches the right arm too."""
+        dev = self.points.device
+        idx = idx.to(dev)
         x = self.points[idx]
         lab, mask = self.label2d[idx].clone(), self.mask[idx].clone()
         if points is not None and points < x.size(1):
             order = torch.rand(x.size(0), x.size(1), generator=generator).argsort(dim=1)
-            pick = order[:, :points].sort(dim=1)[0]
+            pick = order[:, :points].sort(dim=1)[0].to(dev)
             x = torch.gather(x, 1, pick.unsqueeze(-1).expand(-1, -1, 5))
         else:
             x = x.clone()
         b = x.size(0)
         if flip:
-            m = torch.rand(b, generator=generator) < 0.5
+            m = (torch.rand(b, generator=generator) < 0.5).to(dev)
             x[m, :, 0] = (size[0] - 1) - x[m, :, 0]
             lab[m, :, 0] = (size[0] - 1) - lab[m, :, 0]
             lab[m] = lab[m][:, MIRROR]
             mask[m] = mask[m][:, MIRROR]
         if shift:
-            d = torch.randint(-shift, shift + 1, (b, 1, 2), generator=generator).float()
+            d = torch.randint(-shift, shift + 1, (b, 1, 2), generator=generator).float().to(dev)
             x[:, :, :2] += d
             lab += d
             inside = ((lab[..., 0] >= 0) & (lab[..., 0] < size[0]) & (lab[..., 1] >= 0)
@@ -85,7 +94,7 @@ class Dataset:
 def simdr_target(coord, size, sigma=SIGMA):
     """Gaussian labels `(..., size)` centred on integer pixel `coord` `(...)`, min-max
     normalized to [0, 1] per vector (the paper's SimDR labels)."""
-    grid = torch.arange(size, dtype=torch.float32)
+    grid = torch.arange(size, dtype=torch.float32, device=coord.device)
     g = torch.exp(-((grid - coord.unsqueeze(-1)) ** 2) / (2 * sigma**2))
     lo = g.min(dim=-1, keepdim=True)[0]
     hi = g.max(dim=-1, keepdim=True)[0]

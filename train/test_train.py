@@ -136,3 +136,11 @@ def test_augmentation_moves_points_and_labels_together(tmp_path):
                 assert tag in (k, data.MIRROR[k])
                 flipped += tag != k
     assert flipped > 0  # some samples were mirrored
+
+
+def test_fit_epochs_fills_the_budget_and_no_more():
+    # 100 steps of 0.1 s: 10 s an epoch; 95 s hold 9 epochs, never more than asked, never 0.
+    assert train.fit_epochs(0.1, 100, 95.0, 30) == 9
+    assert train.fit_epochs(0.1, 100, 1000.0, 30) == 30
+    assert train.fit_epochs(0.1, 100, 5.0, 30) == 1
+    assert train.default_milestones(30) == [15, 20]
