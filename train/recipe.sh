@@ -7,8 +7,8 @@
 # Needs: a release `evpose` (built here if absent), and train/requirements.txt installed
 # (python: $PYTHON, default python3). WORKDIR holds ~2.5 GB of recordings and datasets.
 # On the 2-core development VM (AMD EPYC, no GPU), measured: data 11.4 min (6 + 12 subjects,
-# 612 recordings, 43,909 training samples; 24 person-free scenes, 2,481 more), mcu 13 min, paper 45 min, dgcnn 38 min and
-# point-transformer 8 min (their step budgets), quantize and eval a few minutes.
+# 612 recordings, 43,909 training samples; 24 person-free scenes, 2,481 more), mcu 13 min,
+# quantize and eval a few minutes. paper, dgcnn and point-transformer need a GPU (below).
 set -euo pipefail
 repo=$(cd "$(dirname "$0")/.." && pwd)
 work=${1:?usage: train/recipe.sh WORKDIR [STEP...]}
@@ -57,34 +57,22 @@ for step in $steps; do
       --lr-steps 8 10 --out mcu.onnx --log mcu.json
     ;;
   paper)
-    # Trained on 512 of the 2,048 stored points per sample (4x cheaper), exported at 2,048:
-    # one epoch at 5e-4, then 2,000 steps (73 % of an epoch) at 5e-5 from its weights; what
-    # fitted in the session's CPU time (25 + 20 minutes on 2 cores).
-    train --widths 64 64 128 256 1024 1024 128 --points 512 --export-points 2048 --epochs 1 \
-      --batch 16 --lr 5e-4 --lr-steps --out paper-epoch1.onnx --log paper-epoch1.json
-    train --widths 64 64 128 256 1024 1024 128 --points 512 --export-points 2048 --epochs 1 \
-      --steps 2000 --batch 16 --lr 5e-5 --lr-steps --init paper-epoch1.pt --seed 2 \
+    # GPU steps (paper, dgcnn, point-transformer): these ran on a lent H200 through
+    # train/gpu-session.sh (2026-12-04), whose --fit-minutes 6 chose the epochs written here
+    # (batch 32; the rate x0.1 at 1/2 and 2/3 of them). Four trainings shared the GPU, about
+    # 6 minutes each; on the 2 CPU cores one of these epochs takes from 40 minutes (DGCNN) to
+    # about 2 hours (estimated from the CPU runs they replace). The CPU-trained models
+    # they replaced (1.7, 1.55 and 0.07 epochs): `git show 187ac69:train/recipe.sh`.
+    train --widths 64 64 128 256 1024 1024 128 --points 2048 --epochs 9 --batch 32 --lr 5e-4 \
       --out paper.onnx --log paper.json
     ;;
   dgcnn)
-    # What two CPU cores allowed over two sessions: 650 steps of 16 at 1e-3 (10 min), then
-    # 1,800 at 5e-4 and 1,800 at 2.5e-4, each from the last checkpoint (14 min each): 4,250
-    # steps, 1.55 epochs.
-    dgcnn() {
-      train --backbone dgcnn --widths 32 32 64 128 512 512 64 --k 16 --points 256 --epochs 1 \
-        --batch 16 --lr-steps "$@"
-    }
-    dgcnn --steps 650 --lr 1e-3 --out dgcnn-phase1.onnx --log dgcnn-phase1.json
-    dgcnn --steps 1800 --lr 5e-4 --init dgcnn-phase1.pt --seed 3 --out dgcnn-phase2.onnx \
-      --log dgcnn-phase2.json
-    dgcnn --steps 1800 --lr 2.5e-4 --init dgcnn-phase2.pt --seed 4 --out dgcnn.onnx \
-      --log dgcnn.json
+    train --backbone dgcnn --widths 32 32 64 128 512 512 64 --k 16 --points 256 --epochs 7 \
+      --batch 32 --lr 1e-3 --out dgcnn.onnx --log dgcnn.json
     ;;
   point-transformer)
-    # What the session's two CPU cores allowed: 200 steps of 16 (8 min).
     train --backbone point-transformer --widths 32 32 64 128 512 512 64 --k 16 --points 256 \
-      --epochs 1 --steps 200 --batch 16 --lr 1e-3 --lr-steps --out point-transformer.onnx \
-      --log point-transformer.json
+      --epochs 6 --batch 32 --lr 1e-3 --out point-transformer.onnx --log point-transformer.json
     ;;
   quantize)
     # The MCU model with one activation scale per layer, the paper-width one with per-channel
