@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # The recipe of the shipped models (models/): synthetic data, training, quantization, evaluation.
-# Every step is seeded; the figures in README's "Trained models" come from this script.
+# Every step is seeded; the figures in README's "Trained models" come from this script, but for
+# the paper, dgcnn and point-transformer models, which train/gpu-session.sh trained on a GPU:
+# their steps here repeat those runs' settings (on CUDA not bit for bit).
 #
 # Usage: bash train/recipe.sh WORKDIR [STEP...]
 #   steps: data mcu paper dgcnn point-transformer quantize eval (default: all, in order)
@@ -60,8 +62,8 @@ for step in $steps; do
     # GPU steps (paper, dgcnn, point-transformer): these ran on a lent H200 through
     # train/gpu-session.sh (2026-12-04), whose --fit-minutes 6 chose the epochs written here
     # (batch 32; the rate x0.1 at 1/2 and 2/3 of them). Four trainings shared the GPU, about
-    # 6 minutes each; on the 2 CPU cores one of these epochs takes from 40 minutes (DGCNN) to
-    # about 2 hours (estimated from the CPU runs they replace). The CPU-trained models
+    # 6 minutes each; on the 2 CPU cores one of these epochs takes from 25-40 minutes (DGCNN)
+    # to about 2 hours (estimated from the CPU runs they replace). The CPU-trained models
     # they replaced (1.7, 1.55 and 0.07 epochs): `git show 187ac69:train/recipe.sh`.
     train --widths 64 64 128 256 1024 1024 128 --points 2048 --epochs 9 --batch 32 --lr 5e-4 \
       --out paper.onnx --log paper.json

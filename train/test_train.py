@@ -144,3 +144,23 @@ def test_fit_epochs_fills_the_budget_and_no_more():
     assert train.fit_epochs(0.1, 100, 1000.0, 30) == 30
     assert train.fit_epochs(0.1, 100, 5.0, 30) == 1
     assert train.default_milestones(30) == [15, 20]
+
+
+def test_fit_minutes_plans_the_epochs_it_trains(tiny, tmp_path):
+    """`--fit-minutes` times the first epoch's steps, plans the epochs that fit (1.8 s cannot
+    hold 100 epochs of 132 steps in eager PyTorch), trains exactly those, logs the plan after
+    every epoch, and moves the rate steps to 1/2 and 2/3 of them."""
+    log_path = tmp_path / "fit.json"
+    args = train.parse(["--data"] + [str(tiny)] * 11 + [
+        "--points", "16", "--epochs", "100", "--batch", "2", "--fit-minutes", "0.03",
+        "--out", str(tmp_path / "fit.onnx"), "--quiet", "--log", str(log_path)]
+        + TINY["pointnet"])
+    _, log = train.train(args)
+    planned = json.loads(log_path.read_text())["epochs_planned"]
+    assert 1 <= planned < 100
+    assert len(log) == planned
+    first, second = train.default_milestones(planned)
+    for e in log:
+        # The rate logged after epoch e is the next epoch's; a milestone of 0 never fires.
+        drops = sum(1 for m in (first, second) if 0 < m <= e["epoch"])
+        assert e["lr"] == pytest.approx(1e-4 * 0.1 ** drops), (planned, log)

@@ -80,7 +80,9 @@ def fit_epochs(step_seconds, steps_per_epoch, budget_seconds, max_epochs):
 
 
 def default_milestones(epochs):
-    """The paper's schedule: the rate drops x0.1 at 1/2 and 2/3 of the epochs (15, 20 of 30)."""
+    """The paper's schedule: the rate drops x0.1 after epochs `epochs // 2` and
+    `epochs * 2 // 3` (15 and 20 of 30; 4 and 6 of 9; for 2 epochs both after the first,
+    x0.01; for 1 never)."""
     return [epochs // 2, epochs * 2 // 3]
 
 
@@ -136,8 +138,8 @@ def train(args):
     gen = torch.Generator().manual_seed(args.seed)
     log, done, start = [], 0, time.time()
     per_epoch = math.ceil(len(ds) / args.batch)
-    epochs, timed_from = args.epochs, None
-    if args.fit_minutes and per_epoch < FIT_WARMUP + FIT_STEPS:
+    epochs, timed_from, fitted = args.epochs, None, False
+    if args.fit_minutes and per_epoch <= FIT_WARMUP + FIT_STEPS:
         raise SystemExit(f"--fit-minutes needs epochs of at least {FIT_WARMUP + FIT_STEPS} "
                          f"steps (this one has {per_epoch})")
     epoch = 0
@@ -146,7 +148,9 @@ def train(args):
         order = torch.randperm(len(ds), generator=gen)
         bar = tqdm(range(per_epoch), desc=f"epoch {epoch + 1}/{epochs}",
                    disable=args.quiet, leave=False)
-        loss_sum, seen = 0.0, 0
+        # Summed on the device (in f64, as the Python float it replaced): reading it every step
+        # would wait for the GPU each time.
+        loss_sum, seen = torch.zeros((), dtype=torch.float64, device=device), 0
         for b in bar:
             idx = order[b * args.batch:(b + 1) * args.batch]
             if len(idx) < 2:  # BatchNorm needs two samples
@@ -157,8 +161,7 @@ def train(args):
             opt.zero_grad()
             loss.backward()
             opt.step()
-            # Summed on the device: reading it every step would wait for the GPU each time.
-            loss_sum, seen, done = loss_sum + loss.detach(), seen + 1, done + 1
+            loss_sum, seen, done = loss_sum + loss.detach().double(), seen + 1, done + 1
             if not args.quiet and seen % 20 == 0:
                 bar.set_postfix(loss=f"{float(loss_sum) / seen:.5f}")
             if args.fit_minutes and epoch == 0 and b in (FIT_WARMUP, FIT_WARMUP + FIT_STEPS):
@@ -172,6 +175,7 @@ def train(args):
                     # 5 % for validation and checkpoints between epochs.
                     epochs = fit_epochs(step_s, per_epoch, 0.95 * (left + step_s * b),
                                         args.epochs)
+                    fitted = True
                     if args.lr_steps is None:
                         sched.milestones = Counter(default_milestones(epochs))
                     print(f"fit: {step_s * 1e3:.2f} ms per step, {epochs} epochs of {per_epoch} "
@@ -187,6 +191,11 @@ def train(args):
         print(json.dumps(entry), flush=True)
         out = Path(args.out)
         torch.save({"state": model.state_dict(), "args": vars(args)}, out.with_suffix(".pt"))
+        if args.fit_minutes and epoch == 0 and not fitted:
+            print(f"--fit-minutes: the first epoch ended before its {FIT_STEPS} timed steps; "
+                  f"training for --epochs {args.epochs}", flush=True)
+        if args.log:  # after every epoch: a run stopped from outside keeps its log
+            write_log(args, epochs, log)
         epoch += 1
         if args.steps and done >= args.steps:
             break
@@ -195,9 +204,14 @@ def train(args):
             break
     export(model, args.out, args.export_points or args.points)
     if args.log:
-        Path(args.log).write_text(json.dumps({"args": vars(args), "epochs_planned": epochs,
-                                              "epochs": log}, indent=1))
+        write_log(args, epochs, log)
     return model, log
+
+
+def write_log(args, epochs, log):
+    """The run's arguments, the epochs it planned (`--fit-minutes`' choice) and its log."""
+    Path(args.log).write_text(json.dumps({"args": vars(args), "epochs_planned": epochs,
+                                          "epochs": log}, indent=1))
 
 
 if __name__ == "__main__":
