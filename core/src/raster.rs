@@ -950,48 +950,78 @@ impl Slices {
 /// `tn = ((a / S) / c) · K` in f64 (three rounded operations; `a = off − off_min`, `S` the
 /// span, `c` the f64 nearest 1.001) lies within `X · 3 · 2^−53 < 2^−48` of the real
 /// `X = a·K / (S·c)` (`X ≤ K / c < 8`). `R = K / (S · c)`, rounded twice in f64 once per
-/// window, is within a relative `2^−52 · (1 + 2^−52)` of the real ratio, so `a · R` (an exact
-/// integer product of `a` and `R`'s significand) is within `2^−49` of `X` (the 0.1 % that `X`
-/// stays below 8 absorbs the excess), and truncated to units of `2^−49` within 4 units of `tn`
-/// (a review counting each rounding's absolute error found 2.75). Where that value lies more
-/// than 5 units from every f32 rounding midpoint (the midpoint below a power of two included,
-/// which is half as far), `tn − k` (exact in f64) rounds to the same f32, built here from the
-/// bits. Otherwise (near a midpoint, near the slice's ends, below 2^−25 of a slice) the answer
-/// is `None` and the caller takes the f64 path: in the tests none of 159,992 offsets spread
-/// over a long window (but its first, fraction 0), 0.7 % of all offsets of short spans. Integer multiplies, shifts and a count of
-/// leading zeros: about 40 instructions on a Cortex-M4, where the two f64 divisions in
-/// software cost several hundred.
+/// window, is within a relative `2^−52 · (1 + 2^−52)` of the real ratio, so `a · R` is within
+/// `2^−49` of `X` (the 0.1 % that `X` stays below 8 absorbs the excess).
+///
+/// Positions are counted in units of `2^−U`, `U` per window: 49, or less where `R` is so large
+/// (a span under about `K · 2^17`) that `M = ⌊R · 2^(U+32)⌋` would not fit 64 bits. Then
+/// `x = ⌊a · M / 2^32⌋` is two 32 × 32-bit products (`UMULL`, `UMAAL` on a Cortex-M4) and lies
+/// within 2 units below `a · R · 2^U` (one truncation in `M`, one in the product), so within
+/// 5 units of `tn · 2^U` (2 + 1 + 2). Where it lies more than [`Self::ERROR`] units from every
+/// f32 rounding midpoint (the midpoint below a power of two included, which is half as far),
+/// `tn − k` (exact in f64) rounds to the same f32, built here from the bits. Otherwise (near a
+/// midpoint, near the slice's ends, below `2^(24−U)` of a slice) the answer is `None` and the
+/// caller takes the f64 path: in the tests none of 159,992 offsets spread over a long window
+/// (but its first, fraction 0) and a few percent of all offsets of short spans.
+///
+/// The common case (the fraction at least `2^(32−U)`) runs in 32-bit words: a count of leading
+/// zeros, three shifts into a normalized 32-bit head, one compare against the midpoint with a
+/// tolerance scaled to the shift. About 30 instructions on a Cortex-M4, where the two f64
+/// divisions in software cost several hundred.
 #[derive(Clone, Copy, Debug)]
 struct FixedFraction {
-    /// `R`'s 53-bit significand `m` (`R = m · 2^−s`): its low 32 bits.
+    /// `M`'s low 32 bits.
     m_lo: u32,
-    /// Its high 21 bits.
+    /// `M`'s high 32 bits.
     m_hi: u32,
-    /// `s − 49`: `a · m` shifted right by it is `a · R` in units of `2^−49`.
-    shift: u32,
+    /// `U`, in 33..=49.
+    unit: u32,
+    /// `2^(U−32)`: a unit count is below `2^U` where its high word is below this.
+    high_limit: u32,
+    /// `189 − U`: a fraction whose leading bit lies `n` places below bit 63 of its unit count
+    /// has the f32 encoding `(exp − n) << 23` plus its 24-bit significand (implicit bit
+    /// included, which adds the missing 1 to the exponent field).
+    exp: u32,
     off_min: i32,
 }
 
 impl FixedFraction {
-    /// Units of the fixed-point position: `2^−UNIT_BITS`.
-    const UNIT_BITS: u32 = 49;
-    /// How far (units) the fixed-point position may lie from the reference's `tn`, plus one.
-    const ERROR: u64 = 5;
+    /// The finest unit, `2^−49`.
+    const MAX_UNIT: u32 = 49;
+    /// How far (units) the fixed-point position may lie from the reference's `tn` (under 5),
+    /// plus one.
+    const ERROR: u32 = 6;
 
     fn new(off_min: i32, span: f64, slices: f64) -> Option<Self> {
         // Spans are exact integers: a window without one has no fractions to compute.
         if span < 1.0 {
             return None;
         }
-        // `R` lies in (2^−33, 8): span ≥ 1 and span < 2^32, K ≤ 8.
+        // `R = m · 2^−s` with `m` its 53-bit significand; `R` lies in (2^−33, 8): span ≥ 1 and
+        // span < 2^32, K ≤ 8.
         let bits = (slices / (span * SPAN_FACTOR)).to_bits();
-        let exp = ((bits >> 52) & 0x7ff) as u32;
-        let shift = 1075u32.checked_sub(exp)?.checked_sub(Self::UNIT_BITS)?;
+        let s = 1075u32.checked_sub(((bits >> 52) & 0x7ff) as u32)?;
         let m = (bits & ((1 << 52) - 1)) | 1 << 52;
+        // `R < 2^(53−s)`, so `R · 2^(U+32) < 2^64` for `U ≤ s − 21`. Below `U = 33` (spans of
+        // about 2K and less) the common case would not exist: the f64 path takes them.
+        let unit = s.checked_sub(21)?.min(Self::MAX_UNIT);
+        if unit < 33 {
+            return None;
+        }
+        // `M = m · 2^(U + 32 − s)`: exact where the exponent is not negative (`m` then moves
+        // up at most 11 places), truncated otherwise.
+        let up = unit + 32;
+        let big = if up >= s {
+            m << (up - s)
+        } else {
+            m.checked_shr(s - up)?
+        };
         Some(Self {
-            m_lo: m as u32,
-            m_hi: (m >> 32) as u32,
-            shift,
+            m_lo: big as u32,
+            m_hi: (big >> 32) as u32,
+            unit,
+            high_limit: 1 << (unit - 32),
+            exp: 189 - unit,
             off_min,
         })
     }
@@ -999,36 +1029,49 @@ impl FixedFraction {
     /// `f32(tn − k)` for an offset of slice `k`, or `None` where this arithmetic cannot tell it.
     #[inline(always)]
     fn fraction(self, off: i32, k: u32) -> Option<f32> {
-        const E: u64 = FixedFraction::ERROR;
+        const E: u32 = FixedFraction::ERROR;
         // `off − off_min` is in [0, 2^32).
         let a = u64::from(off.wrapping_sub(self.off_min) as u32);
-        let (lo, hi) = (a * u64::from(self.m_lo), a * u64::from(self.m_hi));
-        // ⌊a · m / 2^shift⌋ from the two 64-bit halves of the product (`hi < 2^53`), below
-        // 8 · 2^49 for an offset inside the window.
-        let x = if self.shift >= 32 {
-            (hi + (lo >> 32)) >> (self.shift - 32).min(63)
+        // ⌊a · M / 2^32⌋ (below 2^64, as `a < 2^32`), below 8 · 2^U for an offset inside the
+        // window.
+        let x = a * u64::from(self.m_hi) + ((a * u64::from(self.m_lo)) >> 32);
+        // `f = x − k · 2^U`; `k · 2^U` has no low word (`U ≥ 33`, `k < 8`).
+        let lo = x as u32;
+        let hi = ((x >> 32) as u32).wrapping_sub(k << (self.unit - 32));
+        if hi >= self.high_limit {
+            return None; // `f ≥ 2^U`: outside slice `k`, or at its ends
+        }
+        // `n`: leading zeros of `f` as a u64; `head`: its 32 bits from the leading one down;
+        // `rest`: the next 32 bits, where the rounding is decided (bit 31: the half);
+        // `tol`: `E` units at the scale of `rest`, rounded up.
+        let (n, head, rest, tol) = if hi != 0 {
+            // `hi < 2^(U−32) ≤ 2^17`, so `n` is in 15..=31 and every shift below is in range.
+            let n = hi.leading_zeros();
+            let head = hi << n | lo.wrapping_shr(32 - n);
+            let low = lo.wrapping_shl(n);
+            (n, head, head << 24 | low >> 8, (E << (n - 8)) + 1)
         } else {
-            (hi << (32 - self.shift)).wrapping_add(lo >> self.shift)
+            // A fraction below `2^(32−U)` of a slice: 32 bits hold it exactly, and its
+            // significand needs 24 of them and a few to round by.
+            // With `z` leading zeros, `E` units lie `z + 24` places up in `rest`: beyond
+            // `z = 4` the tolerance would reach the half itself.
+            let z = lo.leading_zeros();
+            if z > 4 {
+                return None;
+            }
+            let head = lo << z;
+            (32 + z, head, head << 24, E << (z + 24))
         };
-        let f = x.wrapping_sub(u64::from(k) << Self::UNIT_BITS);
-        if f >= 1 << Self::UNIT_BITS {
-            return None; // outside slice `k`, or at its ends
-        }
-        let len = 64 - f.leading_zeros();
-        if len < 25 {
+        let m24 = head >> 8;
+        let d = rest.wrapping_sub(1 << 31) as i32;
+        let near_half = (d.wrapping_add(tol as i32) as u32) <= 2 * tol;
+        if near_half || (m24 == 1 << 23 && rest <= tol) {
             return None;
         }
-        let sh = len - 24;
-        let m24 = (f >> sh) as u32;
-        let (rest, half) = (f & ((1 << sh) - 1), 1u64 << (sh - 1));
-        let up = rest > half + E;
-        if !(up || rest + E < half) || (m24 == 1 << 23 && rest <= E) {
-            return None;
-        }
-        // `m24 · 2^(sh − 49)`: exponent `sh − 26`, biased `sh + 101`; rounding up carries
-        // into the exponent where the significand overflows, as IEEE's encoding does.
+        // Rounding up carries into the exponent where the significand overflows, as IEEE's
+        // encoding does.
         Some(f32::from_bits(
-            ((sh + 101) << 23 | (m24 & 0x7f_ffff)) + u32::from(up),
+            ((self.exp - n) << 23) + m24 + u32::from(d > 0),
         ))
     }
 }
@@ -1300,9 +1343,12 @@ mod tests {
                 ..RasterConfig::DAVIS346
             };
             let s = Slices::new(&c, (off_min, off_max));
-            let fixed = FixedFraction::new(off_min, s.span, s.slices).unwrap_or_else(|| {
-                panic!("no fixed fractions: span {span}, K {slices}, {off_min}..{off_max}")
-            });
+            let Some(fixed) = FixedFraction::new(off_min, s.span, s.slices) else {
+                // Only spans of about 2K and less have no fixed fractions (`R ≥ 1/2`).
+                assert!(span < 64, "no fixed fractions: span {span}, K {slices}");
+                asked += offs.clone().count() as u64;
+                continue;
+            };
             for a in offs.clone() {
                 let off = (i64::from(off_min) + i64::from(a)) as i32;
                 let tn = s.position(off);
@@ -1336,8 +1382,9 @@ mod tests {
             sh += h;
             sn += n;
         }
-        // Measured: 361,197 of 363,600 for spans 1–300, 3,720 of 3,960 for spans 1–30.
-        let part = if cfg!(miri) { 90 } else { 98 };
+        // Measured: 357,835 of 363,600 for spans 1–300, 3,205 of 3,960 for spans 1–30 (where
+        // spans up to about 2K have no fixed fractions at all).
+        let part = if cfg!(miri) { 75 } else { 98 };
         assert!(
             sh * 100 > sn * part,
             "{sh} of {sn} answered for small spans"
@@ -1366,7 +1413,7 @@ mod tests {
             asked += n;
         }
         // The edges (81 of 145 offsets a window) are where the f64 path is most needed.
-        // Measured: 326,472 of 348,000.
+        // Measured: 326,459 of 348,000.
         assert!(hit * 10 > asked * 9, "{hit} of {asked} answered");
         let step = if cfg!(miri) { 100 } else { 1 };
         // (Offset 0, the window's first event, has fraction 0 and takes the f64 path.)
