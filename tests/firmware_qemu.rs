@@ -677,6 +677,14 @@ fn run_and_compare(cpu: Cpu) -> Checked {
         "{selftest}"
     );
     assert_eq!(field::<u32>(selftest, "mismatches"), 0, "{selftest}");
+    // The batch event decoder against the per-event one (TIME words, straddled reads, an
+    // overflow; `input::check_decoder`).
+    assert_eq!(field::<u32>(selftest, "decoder_cases"), 24, "{selftest}");
+    assert_eq!(
+        field::<u32>(selftest, "decoder_mismatches"),
+        0,
+        "{selftest}"
+    );
 
     let (_, events) = evs::decode(&std::fs::read(event_asset()).unwrap()).unwrap();
     let blob = AlignedBlob::new(&std::fs::read(model_asset()).unwrap());

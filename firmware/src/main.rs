@@ -145,12 +145,19 @@ fn main() -> ! {
     println!("clock: instructions_per_tick={=u64}", per_tick);
     let kernels = evpose_core::kernels::Kernels::best();
     let check = selftest::kernels(&kernels);
+    let (decoder_cases, decoder_mismatches) = input::check_decoder();
     println!(
-        "selftest: kernels={=str} cases={=u32} mismatches={=u32}",
+        "selftest: kernels={=str} cases={=u32} mismatches={=u32} decoder_cases={=u32} decoder_mismatches={=u32}",
         kernels.name(),
         check.cases,
-        check.mismatches
+        check.mismatches,
+        decoder_cases,
+        decoder_mismatches
     );
+    if decoder_mismatches > 0 {
+        defmt::error!("the batch event decoder disagrees with the per-event one");
+        exit(3)
+    }
     if check.mismatches > 0 {
         // Wrong kernels give wrong joints: stop rather than report them.
         defmt::error!("the int8 kernels disagree with the reference");
