@@ -955,12 +955,12 @@ impl Slices {
 ///
 /// Positions are counted in units of `2^−U`, `U` per window: 49, or less where `R` is so large
 /// (a span under about `K · 2^17`) that `M = ⌊R · 2^(U+32)⌋` would not fit 64 bits. Then
-/// `x = ⌊a · M / 2^32⌋` is two 32 × 32-bit products (`UMULL`, `UMAAL` on a Cortex-M4) and lies
+/// `x = ⌊a · M / 2^32⌋` is two 32 × 32-bit products (`UMULL`, `UMLAL` on a Cortex-M4) and lies
 /// within 2 units below `a · R · 2^U` (one truncation in `M`, one in the product), so within
-/// 5 units of `tn · 2^U` (2 + 1 + 2). Where it lies more than [`Self::ERROR`] units from every
+/// 5 units of `tn · 2^U` (2 + 1 + 1.5: `tn`'s three roundings are within `1.5 · 2^(U−49)`). Where it lies more than [`Self::ERROR`] units from every
 /// f32 rounding midpoint (the midpoint below a power of two included, which is half as far),
 /// `tn − k` (exact in f64) rounds to the same f32, built here from the bits. Otherwise (near a
-/// midpoint, near the slice's ends, below `2^(24−U)` of a slice) the answer is `None` and the
+/// midpoint, near the slice's ends, below `2^(27−U)` of a slice) the answer is `None` and the
 /// caller takes the f64 path: in the tests none of 159,992 offsets spread over a long window
 /// (but its first, fraction 0) and a few percent of all offsets of short spans.
 ///
@@ -1043,7 +1043,8 @@ impl FixedFraction {
         }
         // `n`: leading zeros of `f` as a u64; `head`: its 32 bits from the leading one down;
         // `rest`: the next 32 bits, where the rounding is decided (bit 31: the half);
-        // `tol`: `E` units at the scale of `rest`, rounded up.
+        // `tol`: `E` units at the scale of `rest` (plus one for the bits below `rest`, in the
+        // first case).
         let (n, head, rest, tol) = if hi != 0 {
             // `hi < 2^(U−32) ≤ 2^17`, so `n` is in 15..=31 and every shift below is in range.
             let n = hi.leading_zeros();
@@ -1075,6 +1076,10 @@ impl FixedFraction {
         ))
     }
 }
+
+// The small case's tolerance, `E · 2^28` at most, must stay below 2^31 (an i32, doubled in a
+// u32).
+const _: () = assert!(FixedFraction::ERROR <= 7);
 
 /// The first counting-sort pass: sorted words (`x | p | row bin | fraction`, built from the
 /// buffered words in arrival order by [`sorted_word`]) scattered into `sorted` by column,
