@@ -976,7 +976,9 @@ struct FixedFraction {
     m_hi: u32,
     /// `U`, in 33..=49.
     unit: u32,
-    /// `2^(U−32)`: a unit count is below `2^U` where its high word is below this.
+    /// `2^(U−32)`: a unit count is below `2^U` where its high word is below this. (This and
+    /// `exp` follow from `unit`; derived per event instead, the M4 build's rasterizer took 3
+    /// instructions per event more: 156.5 against 153.5.)
     high_limit: u32,
     /// `189 − U`: a fraction whose leading bit lies `n` places below bit 63 of its unit count
     /// has the f32 encoding `(exp − n) << 23` plus its 24-bit significand (implicit bit
