@@ -30,7 +30,7 @@ use evpose_core::{
     scratch_words, Davis346Storage, Estimator, Event, Joint2d, Model, Plan, RasterConfig,
     Rasterizer, Session, Workspace,
 };
-use evpose_host::budget::image_budget;
+use evpose_host::budget::{image_budget, ImageBudget};
 use evpose_host::model::AlignedBlob;
 use evpose_tests::fixtures;
 
@@ -642,9 +642,10 @@ fn host_windows(events: &[Event], blob: &[u8], lag: LagParams) -> (Vec<WindowRes
     (out, lagged_out)
 }
 
-/// An image's output, checked against the host core.
+/// An image's output, checked against the host core, and its sections and symbols.
 struct Checked {
     elf: PathBuf,
+    image: ImageBudget,
     text: String,
     firmware: Vec<(WindowResult, String)>,
     blob: AlignedBlob,
@@ -736,6 +737,7 @@ fn run_and_compare(cpu: Cpu) -> Checked {
     assert_eq!(field::<u64>(done, "accepted"), events.len() as u64);
     assert_eq!(field::<u64>(done, "dropped"), 0);
     Checked {
+        image: image_budget(&elf).unwrap(),
         elf,
         text,
         firmware,
@@ -746,10 +748,9 @@ fn run_and_compare(cpu: Cpu) -> Checked {
 #[test]
 fn firmware_matches_the_host_core_under_qemu() {
     let checked = run_and_compare(Cpu::M7);
-    let elf = &checked.elf;
+    let (elf, image) = (&checked.elf, &checked.image);
 
     // No heap: no heap section or allocator symbol in the image, nothing heap-like in the map.
-    let image = image_budget(elf).unwrap();
     assert!(image.heap.is_empty(), "heap in the image: {:?}", image.heap);
     let map = std::fs::read_to_string(elf.with_file_name("evpose-firmware.map")).unwrap();
     for needle in [".heap", "__rust_alloc", "__rg_alloc"] {
@@ -796,7 +797,7 @@ fn firmware_matches_the_host_core_under_qemu() {
 /// The figures (goals, not asserts): see the README's "Firmware (Cortex-M7)" section.
 fn print_figures(cpu: Cpu, c: &Checked) {
     eprintln!("firmware output ({cpu:?}):\n{}", c.text);
-    let image = image_budget(&c.elf).unwrap();
+    let image = &c.image;
     let model = Model::parse(c.blob.bytes()).unwrap();
     for (i, (_, instr)) in c.firmware.iter().enumerate() {
         let infer: u64 = field(instr, "infer");
