@@ -21,10 +21,11 @@
 //! rasterizer's integer slice fractions), measured on QEMU's Cortex-M4 beside the M7's
 //! (`tests/firmware_qemu.rs`, `cortex_m4_build_matches_the_host_core_under_qemu`). Their input
 //! decoding, sampling, decoding and confidences take the M7's counts: the M4 build's were
-//! within 5.1 % of them at stop 29 (input 414.2–428.5 k against 398.0–413.2 k per window,
-//! sampling 112.1–113.6 k against 113.7–115.2 k, decoding 47.4 k against 48.6 k, confidences
-//! 327.6 k against 311.8 k). The M33 runs the
-//! M4 build's instructions (ARMv8-M Mainline with the DSP extension), not a build of its own.
+//! within 5.1 % of them at stop 30 (input 317.6–329.8 k against 317.8–329.9 k per window,
+//! sampling 120.2–121.9 k against 117.2–118.9 k, decoding 47.4 k against 48.6 k, confidences
+//! 327.6 k against 311.8 k; at stop 29 input 414.2–428.5 k against 398.0–413.2 k). The M33
+//! runs the M4 build's instructions (ARMv8-M Mainline with the DSP extension), not a build of
+//! its own.
 //! Caches and flash wait states are not modelled.
 
 use anyhow::{anyhow, bail, Result};
