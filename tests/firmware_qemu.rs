@@ -9,8 +9,8 @@
 //! and asserts identical windows, point clouds, network inputs, head accumulators (CRC-32),
 //! joints, joint confidences and temporally filtered joints (f32 bits). It fails, never skips,
 //! when QEMU or the target is missing: `scripts/test.sh` installs
-//! both. It also checks that the image has no heap and no panic path beyond those
-//! `firmware/panic-paths.txt` lists, and prints the firmware's figures
+//! both. Both tests also check that the image has no heap and no panic path beyond those
+//! `firmware/panic-paths.txt` lists, and print the firmware's figures
 //! (instructions per stage, per point-layer MAC, flash, RAM, stack); run with `--nocapture`.
 //!
 //! This file also holds the reference codec of the firmware's `EVS1` event stream (format in
@@ -748,17 +748,29 @@ fn run_and_compare(cpu: Cpu) -> Checked {
 #[test]
 fn firmware_matches_the_host_core_under_qemu() {
     let checked = run_and_compare(Cpu::M7);
-    let (elf, image) = (&checked.elf, &checked.image);
+    check_image(Cpu::M7, &checked);
+    print_figures(Cpu::M7, &checked);
+}
 
-    // No heap: no heap section or allocator symbol in the image, nothing heap-like in the map.
-    assert!(image.heap.is_empty(), "heap in the image: {:?}", image.heap);
+/// The image has no heap (no heap section or allocator symbol, nothing heap-like in the map),
+/// and every function that calls into the panic machinery is one that
+/// `firmware/panic-paths.txt` lists (and firmware/README.md explains): a new one fails here.
+/// Both builds (M7 and M4) share the list.
+fn check_image(cpu: Cpu, checked: &Checked) {
+    let (elf, image) = (&checked.elf, &checked.image);
+    assert!(
+        image.heap.is_empty(),
+        "{cpu:?}: heap in the image: {:?}",
+        image.heap
+    );
     let map = std::fs::read_to_string(elf.with_file_name("evpose-firmware.map")).unwrap();
     for needle in [".heap", "__rust_alloc", "__rg_alloc"] {
-        assert!(!map.contains(needle), "the linker map mentions {needle}");
+        assert!(
+            !map.contains(needle),
+            "{cpu:?}: the linker map mentions {needle}"
+        );
     }
 
-    // Panic paths: every function that calls into the panic machinery is one that
-    // `firmware/panic-paths.txt` lists (and firmware/README.md explains): a new one fails here.
     let listed = std::fs::read_to_string(firmware_dir().join("panic-paths.txt")).unwrap();
     let listed: std::collections::BTreeSet<&str> = listed
         .lines()
@@ -775,7 +787,7 @@ fn firmware_matches_the_host_core_under_qemu() {
         .collect();
     assert!(
         new.is_empty(),
-        "panic paths not in firmware/panic-paths.txt (remove them, or list and explain them):\n{}",
+        "{cpu:?}: panic paths not in firmware/panic-paths.txt (remove them, or list and explain them):\n{}",
         new.iter()
             .map(|p| p.as_str())
             .collect::<Vec<_>>()
@@ -786,12 +798,10 @@ fn firmware_matches_the_host_core_under_qemu() {
         .filter(|l| !found.iter().any(|f| f == *l))
         .collect();
     eprintln!(
-        "panic paths: {} ({} listed paths no longer in the image: {gone:?})",
+        "{cpu:?} panic paths: {} ({} listed paths not in this image: {gone:?})",
         found.len(),
         gone.len()
     );
-
-    print_figures(Cpu::M7, &checked);
 }
 
 /// The figures (goals, not asserts): see the README's "Firmware (Cortex-M7)" section.
@@ -819,9 +829,11 @@ fn print_figures(cpu: Cpu, c: &Checked) {
 
 /// The firmware as a Cortex-M4F runs it, on QEMU's Cortex-M4: the same results, bit for bit,
 /// from the FPv4 requantization and the rasterizer's integer slice fractions (f64 in
-/// software). Its figures are what `evpose budget` takes for cores without FPv5
+/// software), with the M7 image's checks of heap and panic paths. Its figures are what `evpose budget` takes for cores without FPv5
 /// (`firmware/measured.json`'s `*_without_arm_fpv5`).
 #[test]
 fn cortex_m4_build_matches_the_host_core_under_qemu() {
-    print_figures(Cpu::M4, &run_and_compare(Cpu::M4));
+    let checked = run_and_compare(Cpu::M4);
+    check_image(Cpu::M4, &checked);
+    print_figures(Cpu::M4, &checked);
 }
