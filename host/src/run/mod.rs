@@ -379,9 +379,9 @@ struct Estimated {
 struct Waiting {
     index: usize,
     t_us: (i64, i64),
-    /// Its events, for the callback (the cutter's ring moves on); empty unless
+    /// Its events and their cameras, for the callback (the cutter moves on); empty unless
     /// [`RunOptions::callback_events`].
-    events: Vec<windows::Tagged>,
+    events: (Vec<u8>, Vec<Event>),
     /// How many events it had.
     count: usize,
     cameras: Vec<Estimated>,
@@ -531,7 +531,8 @@ where
             };
             let events = WindowEvents {
                 index: w.index,
-                parts: (&w.events, &[]),
+                cameras: &w.events.0,
+                events: &w.events.1,
                 t_us: w.t_us,
             };
             self.window(&events, w.count, w.cameras, Some(filtered))?;
@@ -623,7 +624,7 @@ pub fn run(
         let mut cameras = Vec::with_capacity(opts.cameras.len());
         for (cam, est) in opts.cameras.iter().zip(estimators.iter_mut()) {
             events_buf.clear();
-            events_buf.extend(w.of_camera(cam.id).filter_map(|e| cam.rescale.event(e)));
+            w.extend_camera(cam.id, &mut events_buf, |e| cam.rescale.event(e));
             let raw: Raw = est
                 .estimate(&events_buf)
                 .with_context(|| format!("window {} camera {}", w.index, cam.id))?;
@@ -639,7 +640,8 @@ pub fn run(
             *w
         } else {
             WindowEvents {
-                parts: (&[], &[]),
+                cameras: &[],
+                events: &[],
                 ..*w
             }
         };
@@ -672,7 +674,7 @@ pub fn run(
                 waiting.push_back(Waiting {
                     index: w.index,
                     t_us: w.t_us,
-                    events: shown.parts.0.iter().chain(shown.parts.1).copied().collect(),
+                    events: (shown.cameras.to_vec(), shown.events.to_vec()),
                     count: w.len(),
                     cameras,
                 });
@@ -685,12 +687,12 @@ pub fn run(
         let mut batch = Batch::default();
         while reader.read_batch(&mut batch)? {
             reporter.summary.events += batch.events.len() as u64;
-            for (&c, &e) in batch.cameras.iter().zip(&batch.events) {
-                if reporter.first_t.is_none() {
-                    reporter.first_t = Some(e.t);
-                }
-                cutter.push(c, e, &mut |w| emit(w, &mut reporter))?;
+            if reporter.first_t.is_none() {
+                reporter.first_t = batch.events.first().map(|e| e.t);
             }
+            cutter.push_batch(&batch.cameras, &batch.events, &mut |w| {
+                emit(w, &mut reporter)
+            })?;
         }
         cutter.finish(&mut |w| emit(w, &mut reporter))
     })();

@@ -1,8 +1,8 @@
 //! Cutting a multi-camera event stream into windows: by event count or by time, tumbling or
 //! sliding (a stride shorter than the window), over the events of every camera together (as
-//! DHP19 counts its windows), in fixed memory (a ring of one window's events).
-
-use std::collections::VecDeque;
+//! DHP19 counts its windows), in bounded memory: a buffer of at most two windows' events,
+//! cameras and events in separate arrays, so that a window is two contiguous slices and
+//! events move by plain copies.
 
 use anyhow::{bail, Result};
 use evpose_core::Event;
@@ -40,16 +40,15 @@ impl WindowRule {
     }
 }
 
-/// An event with its camera id.
-pub type Tagged = (u8, Event);
-
 /// One window: its events (every camera, in stream order) and its time span.
 #[derive(Clone, Copy, Debug)]
 pub struct WindowEvents<'a> {
     /// Index from 0.
     pub index: usize,
-    /// Events with their camera, in two parts (the ring's halves).
-    pub parts: (&'a [Tagged], &'a [Tagged]),
+    /// The camera of each event (as long as `events`).
+    pub cameras: &'a [u8],
+    /// The events of every camera, in stream order.
+    pub events: &'a [Event],
     /// Time span, µs: the first and last event's time for event windows, the nominal
     /// `[start, end)` as `(start, end − 1)` for time windows.
     pub t_us: (i64, i64),
@@ -58,22 +57,89 @@ pub struct WindowEvents<'a> {
 impl WindowEvents<'_> {
     /// Events of all cameras.
     pub fn len(&self) -> usize {
-        self.parts.0.len() + self.parts.1.len()
+        self.events.len()
     }
 
     /// Whether the window holds no event.
     pub fn is_empty(&self) -> bool {
-        self.len() == 0
+        self.events.is_empty()
     }
 
     /// The events of `camera`, in order.
     pub fn of_camera(&self, camera: u8) -> impl Iterator<Item = Event> + '_ {
-        self.parts
-            .0
+        self.cameras
             .iter()
-            .chain(self.parts.1)
-            .filter(move |(c, _)| *c == camera)
-            .map(|&(_, e)| e)
+            .zip(self.events)
+            .filter(move |(&c, _)| c == camera)
+            .map(|(_, &e)| e)
+    }
+
+    /// Appends the events of `camera`, in order, each through `map` (which may drop it), to
+    /// `out` (what `evpose run` does for every window and camera).
+    pub fn extend_camera(
+        &self,
+        camera: u8,
+        out: &mut Vec<Event>,
+        mut map: impl FnMut(Event) -> Option<Event>,
+    ) {
+        out.reserve(self.events.len());
+        for (&c, &e) in self.cameras.iter().zip(self.events) {
+            if c == camera {
+                if let Some(e) = map(e) {
+                    out.push(e);
+                }
+            }
+        }
+    }
+}
+
+/// The cutter's events: `cameras[start..]` and `events[start..]`, appended at the end and
+/// dropped from the front, moved back to the start of their arrays once the dropped prefix is
+/// as long as a window (so each event is copied at most twice, and the arrays hold at most
+/// two windows' events).
+#[derive(Debug, Default)]
+struct Buffer {
+    cameras: Vec<u8>,
+    events: Vec<Event>,
+    start: usize,
+}
+
+impl Buffer {
+    fn len(&self) -> usize {
+        self.events.len() - self.start
+    }
+
+    fn front(&self) -> Option<&Event> {
+        self.events.get(self.start)
+    }
+
+    fn back(&self) -> Option<&Event> {
+        self.events[self.start..].last()
+    }
+
+    /// Drops the `n` oldest events (all, if fewer).
+    fn drop_front(&mut self, n: usize) {
+        self.start += n.min(self.len());
+    }
+
+    /// Appends events, first moving the live ones to the front if `window` events were dropped.
+    fn extend(&mut self, cameras: &[u8], events: &[Event], window: usize) {
+        if self.start >= window {
+            self.cameras.drain(..self.start);
+            self.events.drain(..self.start);
+            self.start = 0;
+        }
+        self.cameras.extend_from_slice(cameras);
+        self.events.extend_from_slice(events);
+    }
+
+    fn view(&self, index: usize, t_us: (i64, i64)) -> WindowEvents<'_> {
+        WindowEvents {
+            index,
+            cameras: &self.cameras[self.start..],
+            events: &self.events[self.start..],
+            t_us,
+        }
     }
 }
 
@@ -87,13 +153,15 @@ impl WindowEvents<'_> {
 #[derive(Debug)]
 pub struct Cutter {
     rule: WindowRule,
-    ring: VecDeque<Tagged>,
+    buffer: Buffer,
     capacity: usize,
     seen: u64,
     emitted: usize,
     dropped: u64,
     /// Time windows: the end of the next window, µs (set by the first event).
     next_end: Option<i64>,
+    /// Event windows: events to take before the next window is complete.
+    until_window: u64,
 }
 
 impl Cutter {
@@ -107,12 +175,16 @@ impl Cutter {
         };
         Ok(Self {
             rule,
-            ring: VecDeque::with_capacity(capacity),
+            buffer: Buffer::default(),
             capacity,
             seen: 0,
             emitted: 0,
             dropped: 0,
             next_end: None,
+            until_window: match rule {
+                WindowRule::Events { size, .. } => u64::from(size),
+                WindowRule::Time { .. } => 0,
+            },
         })
     }
 
@@ -138,40 +210,60 @@ impl Cutter {
         event: Event,
         emit: &mut dyn FnMut(&WindowEvents<'_>) -> Result<()>,
     ) -> Result<()> {
+        self.push_batch(&[camera], &[event], emit)
+    }
+
+    /// Adds events in order (`cameras[i]` is `events[i]`'s camera; the shorter slice bounds
+    /// both); calls `emit` for each window they complete. The same windows as pushing them
+    /// one by one; event windows take the events between two windows as one copy.
+    pub fn push_batch(
+        &mut self,
+        cameras: &[u8],
+        events: &[Event],
+        emit: &mut dyn FnMut(&WindowEvents<'_>) -> Result<()>,
+    ) -> Result<()> {
+        let n = cameras.len().min(events.len());
+        let (cameras, events) = (&cameras[..n], &events[..n]);
         match self.rule {
-            WindowRule::Events { size, stride } => {
-                if self.ring.len() == self.capacity {
-                    self.ring.pop_front();
-                }
-                self.ring.push_back((camera, event));
-                self.seen += 1;
-                let size = u64::from(size);
-                if self.seen >= size && (self.seen - size).is_multiple_of(u64::from(stride)) {
-                    let t0 = self.ring.front().map_or(event.t, |(_, e)| e.t);
-                    self.emit((t0, event.t), emit)?;
+            WindowRule::Events { stride, .. } => {
+                let mut at = 0;
+                while at < n {
+                    // Up to the event that completes the next window (at most `stride ≤
+                    // size` events, so the buffer keeps them all).
+                    let take = (n - at).min(usize::try_from(self.until_window).unwrap_or(n));
+                    let b = &mut self.buffer;
+                    b.drop_front((b.len() + take).saturating_sub(self.capacity));
+                    let range = at..at + take;
+                    b.extend(&cameras[range.clone()], &events[range], self.capacity);
+                    at += take;
+                    self.seen += take as u64;
+                    self.until_window -= take as u64;
+                    if self.until_window == 0 {
+                        let t0 = self.buffer.front().map_or(0, |e| e.t);
+                        let t1 = self.buffer.back().map_or(0, |e| e.t);
+                        self.emit((t0, t1), emit)?;
+                        self.until_window = u64::from(stride);
+                    }
                 }
             }
             WindowRule::Time { size_us, stride_us } => {
-                let mut end = *self.next_end.get_or_insert(event.t.saturating_add(size_us));
-                while event.t >= end {
-                    let start = end - size_us;
-                    while self.ring.front().is_some_and(|(_, e)| e.t < start) {
-                        self.ring.pop_front();
+                for (&camera, &event) in cameras.iter().zip(events) {
+                    let mut end = *self.next_end.get_or_insert(event.t.saturating_add(size_us));
+                    while event.t >= end {
+                        let start = end - size_us;
+                        self.drop_before(start);
+                        self.emit((start, end - 1), emit)?;
+                        end = end.saturating_add(stride_us);
+                        self.next_end = Some(end);
                     }
-                    self.emit((start, end - 1), emit)?;
-                    end = end.saturating_add(stride_us);
-                    self.next_end = Some(end);
+                    self.drop_before(end - size_us);
+                    if self.buffer.len() == self.capacity {
+                        self.buffer.drop_front(1);
+                        self.dropped += 1;
+                    }
+                    self.buffer.extend(&[camera], &[event], self.capacity);
+                    self.seen += 1;
                 }
-                let start = end - size_us;
-                while self.ring.front().is_some_and(|(_, e)| e.t < start) {
-                    self.ring.pop_front();
-                }
-                if self.ring.len() == self.capacity {
-                    self.ring.pop_front();
-                    self.dropped += 1;
-                }
-                self.ring.push_back((camera, event));
-                self.seen += 1;
             }
         }
         Ok(())
@@ -179,12 +271,21 @@ impl Cutter {
 
     /// Ends the stream: a stream that gave no window and holds events gives them as one.
     pub fn finish(&mut self, emit: &mut dyn FnMut(&WindowEvents<'_>) -> Result<()>) -> Result<()> {
-        if self.emitted == 0 && !self.ring.is_empty() {
-            let t0 = self.ring.front().map_or(0, |(_, e)| e.t);
-            let t1 = self.ring.back().map_or(0, |(_, e)| e.t);
+        if self.emitted == 0 && self.buffer.len() > 0 {
+            let t0 = self.buffer.front().map_or(0, |e| e.t);
+            let t1 = self.buffer.back().map_or(0, |e| e.t);
             self.emit((t0, t1), emit)?;
         }
         Ok(())
+    }
+
+    /// Time windows: drops the oldest events while they lie before `start`.
+    fn drop_before(&mut self, start: i64) {
+        let live = &self.buffer.events[self.buffer.start..];
+        // Events come in time order but for the odd one out of order: drop up to the first
+        // event at or after `start`, as a queue would.
+        let n = live.iter().position(|e| e.t >= start).unwrap_or(live.len());
+        self.buffer.drop_front(n);
     }
 
     fn emit(
@@ -192,12 +293,7 @@ impl Cutter {
         t_us: (i64, i64),
         emit: &mut dyn FnMut(&WindowEvents<'_>) -> Result<()>,
     ) -> Result<()> {
-        let w = WindowEvents {
-            index: self.emitted,
-            parts: self.ring.as_slices(),
-            t_us,
-        };
-        emit(&w)?;
+        emit(&self.buffer.view(self.emitted, t_us))?;
         self.emitted += 1;
         Ok(())
     }
@@ -213,13 +309,7 @@ mod tests {
         let mut out = Vec::new();
         let mut emit = |w: &WindowEvents<'_>| {
             assert_eq!(w.index, out.len());
-            let ts = w
-                .parts
-                .0
-                .iter()
-                .chain(w.parts.1)
-                .map(|(_, e)| e.t)
-                .collect();
+            let ts = w.events.iter().map(|e| e.t).collect();
             out.push((ts, w.t_us));
             Ok(())
         };
@@ -336,6 +426,83 @@ mod tests {
             9
         )
         .is_err());
+    }
+
+    /// Batches of any size give the windows that single events give, and the buffer never
+    /// holds more than two windows' events.
+    #[test]
+    fn batches_cut_the_windows_of_single_events() {
+        type Cut = (usize, Vec<u8>, Vec<Event>, (i64, i64));
+        let events: Vec<(u8, Event)> = (0..2_000i64)
+            .map(|i| {
+                let t = 7 * i + (i * i) % 13; // in order, with repeated steps
+                (
+                    (i % 3) as u8,
+                    Event::new((i % 17) as u16, (i % 11) as u16, t, i % 2 == 0),
+                )
+            })
+            .collect();
+        let rules = [
+            (
+                WindowRule::Events {
+                    size: 64,
+                    stride: 64,
+                },
+                0,
+            ),
+            (
+                WindowRule::Events {
+                    size: 100,
+                    stride: 30,
+                },
+                0,
+            ),
+            (
+                WindowRule::Events {
+                    size: 5_000,
+                    stride: 5_000,
+                },
+                0,
+            ),
+            (
+                WindowRule::Time {
+                    size_us: 300,
+                    stride_us: 120,
+                },
+                40,
+            ),
+        ];
+        let mut state = 12345u64;
+        for (rule, capacity) in rules {
+            let run = |sizes: &mut dyn FnMut() -> usize| -> Vec<Cut> {
+                let mut c = Cutter::new(rule, capacity).unwrap();
+                let mut out = Vec::new();
+                let mut emit = |w: &WindowEvents<'_>| {
+                    out.push((w.index, w.cameras.to_vec(), w.events.to_vec(), w.t_us));
+                    Ok(())
+                };
+                let mut at = 0;
+                while at < events.len() {
+                    let n = sizes().min(events.len() - at);
+                    let (cams, evs): (Vec<u8>, Vec<Event>) =
+                        events[at..at + n].iter().copied().unzip();
+                    c.push_batch(&cams, &evs, &mut emit).unwrap();
+                    assert!(c.buffer.events.len() <= 2 * c.capacity, "{rule:?}");
+                    at += n;
+                }
+                c.finish(&mut emit).unwrap();
+                out
+            };
+            let single = run(&mut || 1);
+            let batched = run(&mut || {
+                state = state
+                    .wrapping_mul(6_364_136_223_846_793_005)
+                    .wrapping_add(1);
+                (state >> 33) as usize % 300
+            });
+            assert!(!single.is_empty());
+            assert_eq!(single, batched, "{rule:?}");
+        }
     }
 
     #[test]
