@@ -143,7 +143,8 @@ impl Buffer {
     }
 }
 
-/// The window cutter: events go in one at a time, complete windows come out.
+/// The window cutter: events go in (one at a time, or a reader's batch at once), complete windows
+/// come out.
 ///
 /// Event windows are complete when `size` events have arrived (then every `stride` events);
 /// time windows when an event at or after their end arrives. The stream's tail, shorter than
