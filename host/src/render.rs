@@ -312,7 +312,8 @@ impl RunRenderer {
         let mut x0 = 0u32;
         for (i, cam) in w.cameras.iter().enumerate() {
             let (cw, ch) = self.sizes[i];
-            let evs: Vec<Event> = events.of_camera(cam.camera).collect();
+            let mut evs = Vec::new();
+            events.extend_camera(cam.camera, &mut evs, Some);
             let mut frame = event_frame(&evs, cw, ch, s)?;
             if let Some(t) = truth {
                 let (label, mask) = &t.cameras[i];

@@ -65,17 +65,8 @@ impl WindowEvents<'_> {
         self.events.is_empty()
     }
 
-    /// The events of `camera`, in order.
-    pub fn of_camera(&self, camera: u8) -> impl Iterator<Item = Event> + '_ {
-        self.cameras
-            .iter()
-            .zip(self.events)
-            .filter(move |(&c, _)| c == camera)
-            .map(|(_, &e)| e)
-    }
-
     /// Appends the events of `camera`, in order, each through `map` (which may drop it), to
-    /// `out` (what `evpose run` does for every window and camera).
+    /// `out` (`Some` keeps every event; `evpose run` rescales them to the model's sensor).
     pub fn extend_camera(
         &self,
         camera: u8,
@@ -156,7 +147,6 @@ pub struct Cutter {
     rule: WindowRule,
     buffer: Buffer,
     capacity: usize,
-    seen: u64,
     emitted: usize,
     dropped: u64,
     /// Time windows: the end of the next window, µs (set by the first event).
@@ -178,7 +168,6 @@ impl Cutter {
             rule,
             buffer: Buffer::default(),
             capacity,
-            seen: 0,
             emitted: 0,
             dropped: 0,
             next_end: None,
@@ -237,7 +226,6 @@ impl Cutter {
                     let range = at..at + take;
                     b.extend(&cameras[range.clone()], &events[range], self.capacity);
                     at += take;
-                    self.seen += take as u64;
                     self.until_window -= take as u64;
                     if self.until_window == 0 {
                         let t0 = self.buffer.front().map_or(0, |e| e.t);
@@ -263,7 +251,6 @@ impl Cutter {
                         self.dropped += 1;
                     }
                     self.buffer.extend(&[camera], &[event], self.capacity);
-                    self.seen += 1;
                 }
             }
         }
@@ -513,7 +500,11 @@ mod tests {
         for (cam, t) in stream(8) {
             c.push(cam, Event::new(0, 0, t, true), &mut |w| {
                 per_camera = (0..4)
-                    .map(|k| w.of_camera(k).map(|e| e.t).collect::<Vec<_>>())
+                    .map(|k| {
+                        let mut evs = Vec::new();
+                        w.extend_camera(k, &mut evs, Some);
+                        evs.iter().map(|e| e.t).collect::<Vec<_>>()
+                    })
                     .collect();
                 Ok(())
             })
