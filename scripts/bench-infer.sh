@@ -3,7 +3,7 @@
 # tract f32, core f32, core int8 (evpose bench infer) and onnxruntime f32 / int8 (the peer),
 # each as the median and the fastest of ITERATIONS runs (on a shared VM, the fastest run is the
 # one least disturbed by other work; the medians move with it).
-# EVPOSE_KERNELS=reference|avx2|avxvnni|avx512bw|avx512vnni picks the core's kernel family.
+# EVPOSE_KERNELS=reference|avx2|avxvnni|avx512bw|avx512vnni|amx picks the core's kernel family.
 # usage: scripts/bench-infer.sh [MODEL.onnx] [ITERATIONS]
 set -euo pipefail
 cd "$(dirname "$0")/.."

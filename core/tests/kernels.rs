@@ -821,12 +821,13 @@ fn check_packed<T: PackedKernel>(
 }
 
 /// `(w, rows, k, x, x_stride, points, bias, out_len, out_stride)`: up to 140 rows (partial and
-/// several row groups), up to 30 points (past one 24-point pass), point rows that overlap,
+/// several row groups), `points` (up to 30 is past one 24-point pass), point rows that overlap,
 /// touch or leave gaps, and `x`, `bias` and `out` that may be short.
 #[allow(clippy::type_complexity)]
 fn packed_shape<T: std::fmt::Debug, S: Strategy<Value = T> + Clone>(
     values: S,
-    k: std::ops::Range<usize>,
+    k: impl Strategy<Value = usize>,
+    points: std::ops::RangeInclusive<usize>,
 ) -> impl Strategy<
     Value = (
         Vec<T>,
@@ -843,7 +844,7 @@ fn packed_shape<T: std::fmt::Debug, S: Strategy<Value = T> + Clone>(
     (
         k,
         1usize..140,
-        0usize..=30,
+        points,
         (0usize..3, 0usize..8),
         (prop::bool::weighted(0.8), 0usize..=40),
         (prop::bool::weighted(0.8), 0usize..4),
@@ -963,22 +964,31 @@ proptest! {
 
     #[test]
     fn i8_packed_kernels_match_reference(
-        (w, r, k, x, xs, p, b, n, s) in packed_shape(any_i8(), 1..600)
+        (w, r, k, x, xs, p, b, n, s) in packed_shape(any_i8(), 1usize..600, 0..=30)
     ) {
         check_packed(&w, r, k, &x, xs, p, &b, n, s);
     }
 
     #[test]
     fn i8_packed_kernels_match_reference_small_k(
-        (w, r, k, x, xs, p, b, n, s) in packed_shape(any_i8(), 1..20)
+        (w, r, k, x, xs, p, b, n, s) in packed_shape(any_i8(), 1usize..20, 0..=30)
     ) {
         // Every tail of the four-input step, and K below one step.
         check_packed(&w, r, k, &x, xs, p, &b, n, s);
     }
 
     #[test]
+    fn i8_packed_kernels_match_reference_whole_tiles(
+        (w, r, k, x, xs, p, b, n, s) in packed_shape(any_i8(), (1usize..6).prop_map(|c| 64 * c), 0..=70)
+    ) {
+        // `K` a multiple of 64, the AMX kernel's tile row (other `K` run AVX-512 VNNI there),
+        // and blocks of points past one (32) and two tile pairs, every remainder of 16.
+        check_packed(&w, r, k, &x, xs, p, &b, n, s);
+    }
+
+    #[test]
     fn i16_packed_kernels_match_reference(
-        (w, r, k, x, xs, p, b, n, s) in packed_shape(any_i16(), 1..40)
+        (w, r, k, x, xs, p, b, n, s) in packed_shape(any_i16(), 1usize..40, 0..=30)
     ) {
         // The first layer's shapes (K = 5) and both tails of the two-input step; full-range
         // values, so that pairs of (-32768)·(-32768) wrap.
@@ -1051,7 +1061,11 @@ fn every_x86_table_has_a_native_packed_kernel() {
             kern.has_packed(),
             matches!(
                 kern.isa(),
-                Isa::X86Avx512Vnni | Isa::X86AvxVnni | Isa::X86Avx2 | Isa::X86Avx512Bw
+                Isa::X86Amx
+                    | Isa::X86Avx512Vnni
+                    | Isa::X86AvxVnni
+                    | Isa::X86Avx2
+                    | Isa::X86Avx512Bw
             ),
             "{}",
             kern.name()
@@ -1242,8 +1256,13 @@ fn peak_loop_runs_every_family_this_cpu_has() {
         let macs = kernels::peak_loop(isa, 1000);
         assert_eq!(macs.is_some(), isa.is_supported_here(), "{}", isa.name());
         if let Some(m) = macs {
-            // 1000 rounds of 12 instructions of 16 to 64 MACs each.
-            assert!(m % 12_000 == 0 && (16..=64).contains(&(m / 12_000)), "{m}");
+            if isa == Isa::X86Amx {
+                // 1000 rounds of six `tdpbssd`, 16 × 16 × 64 MACs each.
+                assert_eq!(m, 1000 * 6 * 16_384);
+            } else {
+                // 1000 rounds of 12 instructions of 16 to 64 MACs each.
+                assert!(m % 12_000 == 0 && (16..=64).contains(&(m / 12_000)), "{m}");
+            }
             // A MAC count past u64 is refused before anything runs.
             assert_eq!(kernels::peak_loop(isa, u64::MAX), None);
         }
@@ -1272,6 +1291,18 @@ fn cpuid_detection_matches_std() {
         avx512 && is_x86_feature_detected!("avx512vnni"),
         "avx512vnni"
     );
+    // std's AMX detection is unstable; Linux lists the CPU's flags, and grants the tile state
+    // (what the core also asks for) wherever it lists them.
+    #[cfg(target_os = "linux")]
+    {
+        let info = std::fs::read_to_string("/proc/cpuinfo").expect("/proc/cpuinfo");
+        let flags: Vec<&str> = info
+            .lines()
+            .find(|l| l.starts_with("flags"))
+            .map_or(vec![], |l| l.split_whitespace().collect());
+        let amx = flags.contains(&"amx_tile") && flags.contains(&"amx_int8");
+        assert_eq!(f.amx(), f.avx512vnni() && amx, "amx");
+    }
     let c = Features::compile_time();
     for isa in Isa::ALL {
         // What the build assumes, the CPU must have.

@@ -182,6 +182,10 @@ pub enum Isa {
     X86Avx512Bw,
     /// x86_64 AVX-512 VNNI: `vpdpbusd`/`vpdpwssd`, 512-bit.
     X86Avx512Vnni,
+    /// x86_64 Intel AMX-INT8 (`tdpbsud` on tiles) for the packed int8 layers whose `K` is a
+    /// multiple of 64, and AVX-512 VNNI for everything else; needs the OS's permission for the
+    /// tile state, which [`Kernels::detect`] asks for on Linux.
+    X86Amx,
     /// Arm Cortex-M with the DSP extension: `SXTB16` + `SMLAD` ([`arm`]); built with the
     /// `arm-dsp` feature on `target_arch = "arm"` only.
     ArmDsp,
@@ -189,16 +193,18 @@ pub enum Isa {
 
 impl Isa {
     /// Every kernel family, on every target.
-    pub const ALL: [Isa; 6] = [
+    pub const ALL: [Isa; 7] = [
         Isa::Reference,
         Isa::X86Avx2,
         Isa::X86AvxVnni,
         Isa::X86Avx512Bw,
         Isa::X86Avx512Vnni,
+        Isa::X86Amx,
         Isa::ArmDsp,
     ];
 
-    /// A short name: `reference`, `avx2`, `avxvnni`, `avx512bw`, `avx512vnni`, `armdsp`.
+    /// A short name: `reference`, `avx2`, `avxvnni`, `avx512bw`, `avx512vnni`, `amx`,
+    /// `armdsp`.
     pub const fn name(self) -> &'static str {
         match self {
             Isa::Reference => "reference",
@@ -206,6 +212,7 @@ impl Isa {
             Isa::X86AvxVnni => "avxvnni",
             Isa::X86Avx512Bw => "avx512bw",
             Isa::X86Avx512Vnni => "avx512vnni",
+            Isa::X86Amx => "amx",
             Isa::ArmDsp => "armdsp",
         }
     }
@@ -220,9 +227,11 @@ impl Isa {
         match self {
             Isa::Reference => Some(Kernels::reference()),
             #[cfg(target_arch = "x86_64")]
-            Isa::X86Avx2 | Isa::X86AvxVnni | Isa::X86Avx512Bw | Isa::X86Avx512Vnni => {
-                x86::kernels(self, x86::Features::detect())
-            }
+            Isa::X86Avx2
+            | Isa::X86AvxVnni
+            | Isa::X86Avx512Bw
+            | Isa::X86Avx512Vnni
+            | Isa::X86Amx => x86::kernels(self, x86::Features::detect()),
             #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
             Isa::ArmDsp => Some(arm::kernels()),
             #[allow(unreachable_patterns)]
@@ -234,7 +243,8 @@ impl Isa {
 /// The x86 kernel sets, fastest first (measured with `benches/kernels.rs`), for
 /// [`Kernels::best`] and [`Kernels::detect`].
 #[cfg(target_arch = "x86_64")]
-const X86_FASTEST_FIRST: [Isa; 4] = [
+const X86_FASTEST_FIRST: [Isa; 5] = [
+    Isa::X86Amx,
     Isa::X86Avx512Vnni,
     Isa::X86Avx512Bw,
     Isa::X86AvxVnni,

@@ -1,4 +1,4 @@
-//! x86_64 kernels: AVX2, AVX-VNNI, AVX-512BW and AVX-512 VNNI.
+//! x86_64 kernels: AVX2, AVX-VNNI, AVX-512BW, AVX-512 VNNI and AMX-INT8.
 //!
 //! Every kernel here returns the same integers as [`super::reference`], for any slice lengths:
 //! it processes the same rows (see [`super::rows`]) and computes each dot product modulo 2^32,
@@ -11,6 +11,7 @@
 //! | `avx512bw` | the same on 512-bit registers | 32 |
 //! | `avxvnni` | `vpdpbusd` (u8 × s8 → i32), 256-bit | 32 |
 //! | `avx512vnni` | `vpdpbusd`, 512-bit | 64 |
+//! | `amx` (packed int8 layers with `K` a multiple of 64; else `avx512vnni`) | `tdpbsud` on 16 × 64-byte tiles | 16,384 |
 //!
 //! `vpdpbusd` multiplies *unsigned* bytes by signed bytes. Both operands are signed here, so the
 //! VNNI kernels feed the weights as `w + 128` (an XOR with `0x80`) and subtract `128 · Σ x`,
@@ -40,6 +41,10 @@
 //! per call), and `128·Σx` is subtracted once per point. The AVX-512BW table (Skylake-SP's AVX-512,
 //! without VNNI) runs AVX2's int8 loop on 512-bit registers.
 //!
+//! The AMX table (`x86/amx.rs`, [`matmat_packed_i8_amx`]) is the AVX-512 VNNI table with a
+//! tile kernel for the packed int8 layers; [`Features::detect`] offers it only where Linux
+//! granted this process the tile state ([`request_tile_data`]).
+//!
 //! The `unsafe fn`s are public for callers that do their own feature checks; safe code gets them
 //! through [`super::Kernels`], which hands out only kernels the CPU supports.
 #![allow(unsafe_code)]
@@ -51,8 +56,11 @@ use core::arch::x86_64::*;
 
 use super::{rows, Isa, Kernels};
 
+mod amx;
 mod packed;
 mod peak;
+
+pub use amx::{matmat_packed_i8_amx, request_tile_data};
 
 pub use packed::{
     matmat_packed_i16_avx2, matmat_packed_i16_avx512bw, matmat_packed_i16_avx512vnni,
@@ -71,6 +79,7 @@ pub struct Features {
     avxvnni: bool,
     avx512bw: bool,
     avx512vnni: bool,
+    amx: bool,
 }
 
 impl Features {
@@ -110,11 +119,14 @@ impl Features {
         let b = leaf7.ebx;
         let avx2 = ymm && b & (1 << 5) != 0;
         let avx512 = zmm && b & (1 << 16) != 0 && b & (1 << 30) != 0 && b & (1 << 31) != 0; // F BW VL
+        let avx512vnni = avx2 && avx512 && leaf7.ecx & (1 << 11) != 0;
         Self {
             avx2,
             avxvnni: avx2 && leaf7.eax >= 1 && leaf7_1.eax & (1 << 4) != 0,
             avx512bw: avx2 && avx512,
-            avx512vnni: avx2 && avx512 && leaf7.ecx & (1 << 11) != 0,
+            avx512vnni,
+            // Asked last, and only where the CPU has it: the request is a system call.
+            amx: avx512vnni && amx::cpu_has_amx(leaf7.edx, xcr0) && request_tile_data(),
         }
     }
 
@@ -136,6 +148,8 @@ impl Features {
                 target_feature = "avx512vl",
                 target_feature = "avx512vnni"
             )),
+            // The OS's permission cannot be known at compile time.
+            amx: false,
         }
     }
 
@@ -147,6 +161,7 @@ impl Features {
             Isa::X86AvxVnni => self.avxvnni,
             Isa::X86Avx512Bw => self.avx512bw,
             Isa::X86Avx512Vnni => self.avx512vnni,
+            Isa::X86Amx => self.amx,
             Isa::ArmDsp => false,
         }
     }
@@ -169,6 +184,13 @@ impl Features {
     /// [`Features::avx512bw`] and AVX-512 VNNI.
     pub const fn avx512vnni(self) -> bool {
         self.avx512vnni
+    }
+
+    /// [`Features::avx512vnni`], AMX-TILE and AMX-INT8, with the tile state enabled by the OS
+    /// (`XCR0`) and, on Linux, granted to this process ([`request_tile_data`], which `detect`
+    /// calls); never at compile time.
+    pub const fn amx(self) -> bool {
+        self.amx
     }
 }
 
@@ -193,7 +215,8 @@ pub(super) const fn kernels(isa: Isa, features: Features) -> Option<Kernels> {
         Isa::X86Avx2 => (avx2_i8, avx2_i16, avx2_i8mm),
         Isa::X86AvxVnni => (avxvnni_i8, avxvnni_i16, avxvnni_i8mm),
         Isa::X86Avx512Bw => (avx512bw_i8, avx512bw_i16, avx512bw_i8mm),
-        Isa::X86Avx512Vnni => (avx512vnni_i8, avx512vnni_i16, avx512vnni_i8mm),
+        // AMX: the AVX-512 VNNI kernels, but for the packed int8 one (`packed_kernels`).
+        Isa::X86Avx512Vnni | Isa::X86Amx => (avx512vnni_i8, avx512vnni_i16, avx512vnni_i8mm),
         _ => return None,
     };
     let (requant, pool): (super::RequantizeI8, super::PoolI8) = match isa {
@@ -217,7 +240,7 @@ pub(super) const fn kernels(isa: Isa, features: Features) -> Option<Kernels> {
 pub(super) fn f32_kernel(k: &Kernels) -> Option<super::MatvecF32> {
     match k.isa() {
         Isa::X86Avx2 | Isa::X86AvxVnni => Some(avx2_f32),
-        Isa::X86Avx512Bw | Isa::X86Avx512Vnni => Some(avx512_f32),
+        Isa::X86Avx512Bw | Isa::X86Avx512Vnni | Isa::X86Amx => Some(avx512_f32),
         _ => None,
     }
 }
@@ -228,6 +251,7 @@ pub(super) fn packed_kernels(
     k: &Kernels,
 ) -> Option<(super::MatmatPackedI8, super::MatmatPackedI16)> {
     match k.isa() {
+        Isa::X86Amx => Some((amx_i8pk, avx512vnni_i16pk)),
         Isa::X86Avx512Vnni => Some((avx512vnni_i8pk, avx512vnni_i16pk)),
         Isa::X86AvxVnni => Some((avxvnni_i8pk, avxvnni_i16pk)),
         Isa::X86Avx2 => Some((avx2_i8pk, avx2_i16pk)),
@@ -324,6 +348,7 @@ macro_rules! checked_pk {
 }
 
 checked_pk! {
+    amx_i8pk => matmat_packed_i8_amx(i8, super::PackedI8<'_>);
     avx512vnni_i8pk => matmat_packed_i8_avx512vnni(i8, super::PackedI8<'_>);
     avx512vnni_i16pk => matmat_packed_i16_avx512vnni(i16, super::PackedI16<'_>);
     avxvnni_i8pk => matmat_packed_i8_avxvnni(i8, super::PackedI8<'_>);

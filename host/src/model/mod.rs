@@ -169,7 +169,7 @@ pub fn run_core_f32(blob: &AlignedBlob, points: &[[f32; 5]]) -> Result<Logits<f3
 }
 
 /// The environment variable that picks a kernel family by name instead of the fastest this
-/// CPU runs (`reference`, `avx2`, `avxvnni`, `avx512bw`, `avx512vnni`): to measure or check
+/// CPU runs (`reference`, `avx2`, `avxvnni`, `avx512bw`, `avx512vnni`, `amx`): to measure or check
 /// one family on a CPU that has several. Unset or empty: the fastest; a family this CPU lacks:
 /// a warning on stderr, then the fastest (the kernel name every benchmark prints says which ran).
 pub const KERNELS_ENV: &str = "EVPOSE_KERNELS";

@@ -23,7 +23,17 @@ const CHAINS: usize = 12;
 /// | `avxvnni` | `vpdpbusd` ymm | 32 |
 /// | `avx512bw` | `vpmaddwd` + `vpaddd` zmm (int8 widened to i16) | 32 |
 /// | `avx2` | `vpmaddwd` + `vpaddd` ymm | 16 |
+///
+/// `amx` runs rounds of six independent `tdpbssd` (16 × 16 × 64 = 16,384 MACs each) instead.
 pub fn peak_loop(isa: Isa, iters: u64) -> Option<u64> {
+    if isa == Isa::X86Amx {
+        iters.checked_mul(6 * 16 * 16 * 64)?;
+        if !Features::detect().supports(isa) {
+            return None;
+        }
+        // SAFETY: `detect` just confirmed AMX-INT8 and the tile-data permission.
+        return Some(unsafe { super::amx::peak(iters) });
+    }
     let per_instruction = match isa {
         Isa::X86Avx512Vnni => 64,
         Isa::X86AvxVnni | Isa::X86Avx512Bw => 32,

@@ -1,0 +1,328 @@
+//! The int8 kernel over packed weights on Intel AMX (`tdpbsud`, tile registers), and what it
+//! takes to be allowed to run it.
+//!
+//! An AMX tile is up to 16 rows of 64 bytes; `tdpbsud C, A, B` adds to each i32 of the
+//! 16 × 16 tile `C` the dot products of a row of `A` (16 × 64 signed bytes: 16 points, 64
+//! inputs) with a column of `B` (16 × 64 unsigned bytes: 16 steps of four inputs for each of 16
+//! outputs), 16,384 multiply-accumulates in one instruction. `B`'s layout, four consecutive
+//! inputs of one output per 32-bit column, is the [packed](crate::kernels::packed) layout's:
+//! step `s` of a row group is one 256-byte block (64 outputs × 4 bytes), so 16 outputs of 16
+//! consecutive steps are a tile of rows 256 bytes apart in the packed buffer, loaded as they
+//! lie. The weights are stored as `w + 128`, the unsigned operand, and the `128·Σx` this adds
+//! is subtracted once per point, as in the VNNI kernels. Each tile's four products are summed
+//! into i32 exactly (4 · 128 · 255 < 2^31), and the sums wrap: the reference's residue modulo
+//! 2^32.
+//!
+//! Registers, per block of up to 32 points:
+//!
+//! | tile | holds |
+//! |---|---|
+//! | `tmm0`, `tmm1` | sums of points 0–15 for outputs 0–15, 16–31 of a 32-output slice |
+//! | `tmm2`, `tmm3` | the same for points 16–31 |
+//! | `tmm4`, `tmm5` | 64 inputs of points 0–15 and 16–31 (rows of `x`, read in place) |
+//! | `tmm6`, `tmm7` | 16 steps of outputs 0–15 and 16–31 of the slice (packed weights, in place) |
+//!
+//! so every weight tile serves 32 points and every input tile 32 outputs: four `tdpbsud` per
+//! four tile loads. The sums go through a 4 KiB buffer on the stack, where the bias and the
+//! correction are added on the way to `out`.
+//!
+//! The kernel needs `K` to be a multiple of 64 (a tile's row): other layers (the small MCU
+//! model's) run the AVX-512 VNNI kernel, as does the int16 first layer (AMX has no int16
+//! product).
+//!
+//! # Permission
+//!
+//! AMX's tile data is 8 KiB of register state, which Linux (5.16 and later) saves only for a
+//! process that asked for it: until then the first tile instruction raises `SIGILL`.
+//! [`request_tile_data`] asks (`arch_prctl(ARCH_REQ_XCOMP_PERM, XFEATURE_XTILEDATA)`, a
+//! system call made directly, as the core has no `std`); [`super::Features::detect`] offers AMX
+//! only where the CPU has it, the OS enabled it in `XCR0` and the request succeeded. On other
+//! systems the core does not offer AMX.
+
+use core::arch::asm;
+use core::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+
+use super::matmat_packed_i8_avx512vnni;
+use super::vnni_correction;
+use crate::kernels::packed::{call_dims, PackedI8, GROUP_ROWS};
+
+/// Inputs per tile row: 64 bytes.
+pub const TILE_K: usize = 64;
+
+/// Points (tile rows) per tile.
+const TILE_ROWS: usize = 16;
+
+/// Points per block: two tiles of rows.
+const BLOCK_POINTS: usize = 2 * TILE_ROWS;
+
+/// Outputs per slice: two tiles of 16 columns.
+const SLICE: usize = 32;
+
+/// Steps (four inputs) per tile: the rows of a weight tile.
+const TILE_STEPS: usize = TILE_K / 4;
+
+/// Bytes between a weight tile's rows: one packed block.
+const B_STRIDE: usize = crate::kernels::packed::BLOCK_BYTES;
+
+/// The 64-byte operand of `ldtilecfg` (palette 1).
+#[repr(C, align(64))]
+struct TileConfig([u8; 64]);
+
+impl TileConfig {
+    /// Tiles for a block of `r0` (1..=16) and `r1` (0..=16) points: see the module docs. A tile
+    /// of 0 rows stays unconfigured (and unused).
+    fn new(r0: usize, r1: usize) -> Self {
+        let mut c = [0u8; 64];
+        c[0] = 1; // palette 1
+        let rows = [r0, r0, r1, r1, r0, r1, TILE_STEPS, TILE_STEPS];
+        for (t, &r) in rows.iter().enumerate() {
+            if r > 0 {
+                // Bytes per row (u16, little-endian) at 16 + 2t, rows at 48 + t.
+                c[16 + 2 * t] = 64;
+                c[48 + t] = r as u8;
+            }
+        }
+        Self(c)
+    }
+}
+
+/// `XFEATURE_XTILEDATA`: the tile data's bit in `XCR0`.
+const XTILEDATA: u64 = 18;
+
+/// Asks Linux for permission to use the AMX tile data in this process (every thread, now and
+/// later); `true` if granted (or already granted). Idempotent; one system call.
+#[cfg(target_os = "linux")]
+pub fn request_tile_data() -> bool {
+    const SYS_ARCH_PRCTL: i64 = 158;
+    const ARCH_REQ_XCOMP_PERM: i64 = 0x1023;
+    let ret: i64;
+    // SAFETY: `arch_prctl(ARCH_REQ_XCOMP_PERM, 18)` reads and writes no memory of ours; it
+    // only changes which register state the kernel saves for this process. The `syscall`
+    // instruction clobbers `rcx` and `r11`, declared here; the stack is not touched.
+    unsafe {
+        asm!(
+            "syscall",
+            inlateout("rax") SYS_ARCH_PRCTL => ret,
+            in("rdi") ARCH_REQ_XCOMP_PERM,
+            in("rsi") XTILEDATA as i64,
+            lateout("rcx") _,
+            lateout("r11") _,
+            options(nostack, preserves_flags),
+        );
+    }
+    ret == 0
+}
+
+/// On systems other than Linux the core does not ask, and does not offer AMX.
+#[cfg(not(target_os = "linux"))]
+pub fn request_tile_data() -> bool {
+    false
+}
+
+/// Whether `cpuid`'s leaf 7 (`edx`) and `XCR0` say the CPU has AMX-TILE and AMX-INT8 and the OS
+/// enabled the tile state (both `XCR0` bits, 17 and 18).
+pub(super) fn cpu_has_amx(leaf7_edx: u32, xcr0: u64) -> bool {
+    let tile = leaf7_edx & (1 << 24) != 0;
+    let int8 = leaf7_edx & (1 << 25) != 0;
+    tile && int8 && xcr0 & (0b11 << 17) == 0b11 << 17
+}
+
+/// [`crate::kernels::packed::matmat_packed_i8`], bit-exact, on AMX tiles where `K` is a
+/// multiple of 64 (and with [`matmat_packed_i8_avx512vnni`] otherwise).
+///
+/// # Safety
+/// The CPU must support AVX-512 (F, BW, VL, VNNI) and AMX-INT8, and this process must hold
+/// the tile-data permission: what [`super::Features::detect`]'s `amx` says.
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+pub unsafe fn matmat_packed_i8_amx(
+    w: &PackedI8<'_>,
+    x: &[i8],
+    x_stride: usize,
+    points: usize,
+    bias: &[i32],
+    out: &mut [i32],
+    out_stride: usize,
+) {
+    let k = w.k();
+    if k == 0 || !k.is_multiple_of(TILE_K) {
+        // SAFETY: the caller guarantees AVX-512 VNNI.
+        return unsafe {
+            matmat_packed_i8_avx512vnni(w, x, x_stride, points, bias, out, out_stride)
+        };
+    }
+    let (n, o) = call_dims(w, x, x_stride, points, bias, out, out_stride);
+    if n == 0 {
+        return;
+    }
+    let chunks = k / TILE_K;
+    let mut sums = Sums([[0; SLICE]; BLOCK_POINTS]);
+    let mut configured = (0, 0);
+    let mut p0 = 0;
+    while p0 < n {
+        let m = (n - p0).min(BLOCK_POINTS);
+        let (r0, r1) = (m.min(TILE_ROWS), m.saturating_sub(TILE_ROWS));
+        if configured != (r0, r1) {
+            let cfg = TileConfig::new(r0, r1);
+            // SAFETY: AMX permission per the caller; `cfg` is a valid palette-1 configuration
+            // (rows ≤ 16, 64 bytes per row), 64 bytes read from a live, aligned value.
+            unsafe {
+                asm!("ldtilecfg [{}]", in(reg) cfg.0.as_ptr(), options(nostack, readonly, preserves_flags))
+            };
+            configured = (r0, r1);
+        }
+        let mut corr = [0i32; BLOCK_POINTS];
+        for (i, c) in corr.iter_mut().enumerate().take(m) {
+            *c = vnni_correction(&x[(p0 + i) * x_stride..][..k]);
+        }
+        // The block's input rows: points p0.. of `x` (call_dims checked that the n points fit).
+        let a0 = &x[p0 * x_stride..][..(r0 - 1) * x_stride + k];
+        let a1 = (r1 > 0).then(|| &x[(p0 + TILE_ROWS) * x_stride..][..(r1 - 1) * x_stride + k]);
+        for g in 0..w.groups() {
+            let blocks = w.group(g);
+            for half in 0..GROUP_ROWS / SLICE {
+                let c0 = g * GROUP_ROWS + half * SLICE;
+                if c0 >= o {
+                    break;
+                }
+                // SAFETY: tiles configured above for this block (r1 = 0: tiles 2, 3 and 5 are
+                // not configured and not used). Every load reads inside a slice: `a0`/`a1`
+                // hold r rows of `k` ≥ 64(c + 1) bytes `x_stride` apart, and `b` the 16
+                // blocks (256 bytes each) of steps 16c..16c + 16 < steps, of which each tile
+                // row reads 64 bytes at offset 128·half or 128·half + 64 (< 256). The stores
+                // write `sums`' 32 rows of 32 i32 (128 bytes apart): the tiles of points 0–15
+                // at rows 0–15 (columns 0–15 and 16–31), points 16–31 at rows 16–31.
+                unsafe {
+                    asm!(
+                        "tilezero tmm0",
+                        "tilezero tmm1",
+                        options(nostack, nomem, preserves_flags)
+                    );
+                    if r1 > 0 {
+                        asm!(
+                            "tilezero tmm2",
+                            "tilezero tmm3",
+                            options(nostack, nomem, preserves_flags)
+                        );
+                    }
+                    for c in 0..chunks {
+                        let b = &blocks[c * TILE_STEPS..][..TILE_STEPS];
+                        let b0 = b.as_ptr().cast::<u8>().add(half * 2 * 64);
+                        let a = a0.as_ptr().add(c * TILE_K);
+                        // The next chunk's weight rows, on their way from L2 while these
+                        // multiply (measured: 6–12 % faster on conv5's shape).
+                        if let Some(next) = blocks.get((c + 1) * TILE_STEPS..(c + 2) * TILE_STEPS) {
+                            for blk in next {
+                                let p = blk.as_ptr().add(half * 2 * 64);
+                                _mm_prefetch::<_MM_HINT_T0>(p.cast());
+                                _mm_prefetch::<_MM_HINT_T0>(p.add(64).cast());
+                            }
+                        }
+                        match a1 {
+                            Some(a1) => asm!(
+                                "tileloadd tmm4, [{a} + {s}*1]",
+                                "tileloadd tmm6, [{b} + {bs}*1]",
+                                "tdpbsud tmm0, tmm4, tmm6",
+                                "tileloadd tmm7, [{b} + {bs}*1 + 64]",
+                                "tdpbsud tmm1, tmm4, tmm7",
+                                "tileloadd tmm5, [{a1} + {s}*1]",
+                                "tdpbsud tmm2, tmm5, tmm6",
+                                "tdpbsud tmm3, tmm5, tmm7",
+                                a = in(reg) a,
+                                a1 = in(reg) a1.as_ptr().add(c * TILE_K),
+                                s = in(reg) x_stride,
+                                b = in(reg) b0,
+                                bs = in(reg) B_STRIDE,
+                                options(nostack, readonly, preserves_flags),
+                            ),
+                            None => asm!(
+                                "tileloadd tmm4, [{a} + {s}*1]",
+                                "tileloadd tmm6, [{b} + {bs}*1]",
+                                "tdpbsud tmm0, tmm4, tmm6",
+                                "tileloadd tmm7, [{b} + {bs}*1 + 64]",
+                                "tdpbsud tmm1, tmm4, tmm7",
+                                a = in(reg) a,
+                                s = in(reg) x_stride,
+                                b = in(reg) b0,
+                                bs = in(reg) B_STRIDE,
+                                options(nostack, readonly, preserves_flags),
+                            ),
+                        }
+                    }
+                    let s = sums.0.as_mut_ptr().cast::<i32>();
+                    asm!(
+                        "tilestored [{p} + {s}*1], tmm0",
+                        "tilestored [{p} + {s}*1 + 64], tmm1",
+                        p = in(reg) s,
+                        s = in(reg) SLICE * 4,
+                        options(nostack, preserves_flags),
+                    );
+                    if r1 > 0 {
+                        asm!(
+                            "tilestored [{p} + {s}*1], tmm2",
+                            "tilestored [{p} + {s}*1 + 64], tmm3",
+                            p = in(reg) s.add(TILE_ROWS * SLICE),
+                            s = in(reg) SLICE * 4,
+                            options(nostack, preserves_flags),
+                        );
+                    }
+                }
+                let cols = (o - c0).min(SLICE);
+                let bias = &bias[c0..][..cols];
+                for (i, (row, &c)) in sums.0.iter().zip(&corr).take(m).enumerate() {
+                    let y = &mut out[(p0 + i) * out_stride + c0..][..cols];
+                    for ((y, &s), &b) in y.iter_mut().zip(row).zip(bias) {
+                        *y = s.wrapping_add(b).wrapping_sub(c);
+                    }
+                }
+            }
+        }
+        p0 += m;
+    }
+    // SAFETY: AMX permission per the caller; releases the tiles this call configured.
+    unsafe { asm!("tilerelease", options(nostack, nomem, preserves_flags)) };
+}
+
+/// The tile stores' buffer: 32 points × 32 outputs, rows 128 bytes apart.
+#[repr(C, align(64))]
+struct Sums([[i32; SLICE]; BLOCK_POINTS]);
+
+/// Runs `iters` rounds of six independent `tdpbssd` (16 × 16 × 64 MACs each) on zeroed tiles
+/// and returns the MACs done, for [`super::peak_loop`].
+///
+/// # Safety
+/// As [`matmat_packed_i8_amx`]: AMX-INT8 and the tile-data permission.
+pub(super) unsafe fn peak(iters: u64) -> u64 {
+    let cfg = TileConfig::new(TILE_ROWS, TILE_ROWS);
+    let mut out = [[0i32; 16]; 16];
+    // SAFETY: the caller guarantees AMX; tiles 0–7 are configured with 16 rows of 64 bytes; the
+    // one store writes `out`'s 16 rows of 64 bytes.
+    unsafe {
+        asm!("ldtilecfg [{}]", in(reg) cfg.0.as_ptr(), options(nostack, readonly, preserves_flags));
+        asm!(
+            "tilezero tmm0",
+            "tilezero tmm1",
+            "tilezero tmm2",
+            "tilezero tmm3",
+            "tilezero tmm4",
+            "tilezero tmm5",
+            "tilezero tmm6",
+            "tilezero tmm7",
+            options(nostack, nomem, preserves_flags)
+        );
+        for _ in 0..iters {
+            asm!(
+                "tdpbssd tmm0, tmm6, tmm7",
+                "tdpbssd tmm1, tmm6, tmm7",
+                "tdpbssd tmm2, tmm6, tmm7",
+                "tdpbssd tmm3, tmm6, tmm7",
+                "tdpbssd tmm4, tmm6, tmm7",
+                "tdpbssd tmm5, tmm6, tmm7",
+                options(nostack, nomem, preserves_flags)
+            );
+        }
+        asm!("tilestored [{}+{}*1], tmm0", in(reg) out.as_mut_ptr(), in(reg) 64usize, options(nostack, preserves_flags));
+        asm!("tilerelease", options(nostack, nomem, preserves_flags));
+    }
+    core::hint::black_box(out);
+    iters * 6 * (TILE_ROWS * TILE_ROWS * TILE_K) as u64
+}
