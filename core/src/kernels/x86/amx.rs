@@ -26,9 +26,10 @@
 //! four tile loads. The sums go through a 4 KiB buffer on the stack, where the bias and the
 //! correction are added on the way to `out`.
 //!
-//! The kernel needs `K` to be a multiple of 64 (a tile's row): other layers (the small MCU
-//! model's) run the AVX-512 VNNI kernel, as does the int16 first layer (AMX has no int16
-//! product).
+//! The kernel takes layers whose `K` is a multiple of 64 (a tile's row) and at least
+//! [`MIN_K`] (256): the others (the small MCU model's, the paper model's first four) run the
+//! AVX-512 VNNI kernel, as does the int16 first layer (AMX has no int16 product). In the
+//! paper model the tiles run conv5 (512 inputs, 1,024 outputs), 92 % of its MACs.
 //!
 //! # Permission
 //!
@@ -48,6 +49,12 @@ use crate::kernels::packed::{call_dims, PackedI8, GROUP_ROWS};
 
 /// Inputs per tile row: 64 bytes.
 pub const TILE_K: usize = 64;
+
+/// The smallest `K` the tiles take: with fewer than four chunks of 64 inputs, a tile's
+/// set-up, stores and bias pass cost more than its products save, and the AVX-512 VNNI kernel
+/// was as fast or faster (`K` = 64: 91–181 against 141 GMAC/s; the MCU model, whose only
+/// multiple of 64 is a 128-input layer: 53–84 against 95 GMAC/s with it on tiles).
+pub const MIN_K: usize = 256;
 
 /// Points (tile rows) per tile.
 const TILE_ROWS: usize = 16;
@@ -128,7 +135,7 @@ pub(super) fn cpu_has_amx(leaf7_edx: u32, xcr0: u64) -> bool {
 }
 
 /// [`crate::kernels::packed::matmat_packed_i8`], bit-exact, on AMX tiles where `K` is a
-/// multiple of 64 (and with [`matmat_packed_i8_avx512vnni`] otherwise).
+/// multiple of 64 and at least [`MIN_K`] (and with [`matmat_packed_i8_avx512vnni`] otherwise).
 ///
 /// # Safety
 /// The CPU must support AVX-512 (F, BW, VL, VNNI) and AMX-INT8, and this process must hold
@@ -144,7 +151,7 @@ pub unsafe fn matmat_packed_i8_amx(
     out_stride: usize,
 ) {
     let k = w.k();
-    if k == 0 || !k.is_multiple_of(TILE_K) {
+    if k < MIN_K || !k.is_multiple_of(TILE_K) {
         // SAFETY: the caller guarantees AVX-512 VNNI.
         return unsafe {
             matmat_packed_i8_avx512vnni(w, x, x_stride, points, bias, out, out_stride)
