@@ -13,6 +13,9 @@
 //! into i32 exactly (4 · 128 · 255 < 2^31), and the sums wrap: the reference's residue modulo
 //! 2^32.
 //!
+//! The `asm!` blocks declare the tiles they write (`tmm` clobbers); the tiles hold their values
+//! from one block to the next because nothing between them calls out or touches tiles.
+//!
 //! Registers, per block of up to 32 points:
 //!
 //! | tile | holds |
@@ -163,24 +166,28 @@ pub unsafe fn matmat_packed_i8_amx(
     }
     let chunks = k / TILE_K;
     let mut sums = Sums([[0; SLICE]; BLOCK_POINTS]);
-    let mut configured = (0, 0);
     let mut p0 = 0;
     while p0 < n {
         let m = (n - p0).min(BLOCK_POINTS);
         let (r0, r1) = (m.min(TILE_ROWS), m.saturating_sub(TILE_ROWS));
-        if configured != (r0, r1) {
-            let cfg = TileConfig::new(r0, r1);
-            // SAFETY: AMX permission per the caller; `cfg` is a valid palette-1 configuration
-            // (rows ≤ 16, 64 bytes per row), 64 bytes read from a live, aligned value.
-            unsafe {
-                asm!("ldtilecfg [{}]", in(reg) cfg.0.as_ptr(), options(nostack, readonly, preserves_flags))
-            };
-            configured = (r0, r1);
-        }
+        // Before the tiles are configured, per block: the tile state does not survive calls
+        // (the x86-64 psABI), and this loop may call out.
         let mut corr = [0i32; BLOCK_POINTS];
         for (i, c) in corr.iter_mut().enumerate().take(m) {
             *c = vnni_correction(&x[(p0 + i) * x_stride..][..k]);
         }
+        let cfg = TileConfig::new(r0, r1);
+        // SAFETY: AMX permission per the caller; `cfg` is a valid palette-1 configuration
+        // (rows ≤ 16, 64 bytes per row), 64 bytes read from a live, aligned value.
+        unsafe {
+            asm!(
+                "ldtilecfg [{}]",
+                in(reg) cfg.0.as_ptr(),
+                out("tmm0") _, out("tmm1") _, out("tmm2") _, out("tmm3") _,
+                out("tmm4") _, out("tmm5") _, out("tmm6") _, out("tmm7") _,
+                options(nostack, readonly, preserves_flags),
+            )
+        };
         // The block's input rows: points p0.. of `x` (call_dims checked that the n points fit).
         let a0 = &x[p0 * x_stride..][..(r0 - 1) * x_stride + k];
         let a1 = (r1 > 0).then(|| &x[(p0 + TILE_ROWS) * x_stride..][..(r1 - 1) * x_stride + k]);
@@ -202,13 +209,13 @@ pub unsafe fn matmat_packed_i8_amx(
                     asm!(
                         "tilezero tmm0",
                         "tilezero tmm1",
-                        options(nostack, nomem, preserves_flags)
+                        out("tmm0") _, out("tmm1") _, options(nostack, nomem, preserves_flags)
                     );
                     if r1 > 0 {
                         asm!(
                             "tilezero tmm2",
                             "tilezero tmm3",
-                            options(nostack, nomem, preserves_flags)
+                            out("tmm2") _, out("tmm3") _, options(nostack, nomem, preserves_flags)
                         );
                     }
                     for c in 0..chunks {
@@ -239,6 +246,8 @@ pub unsafe fn matmat_packed_i8_amx(
                                 s = in(reg) x_stride,
                                 b = in(reg) b0,
                                 bs = in(reg) B_STRIDE,
+                                out("tmm0") _, out("tmm1") _, out("tmm2") _, out("tmm3") _,
+                                out("tmm4") _, out("tmm5") _, out("tmm6") _, out("tmm7") _,
                                 options(nostack, readonly, preserves_flags),
                             ),
                             None => asm!(
@@ -251,6 +260,8 @@ pub unsafe fn matmat_packed_i8_amx(
                                 s = in(reg) x_stride,
                                 b = in(reg) b0,
                                 bs = in(reg) B_STRIDE,
+                                out("tmm0") _, out("tmm1") _, out("tmm4") _, out("tmm6") _,
+                                out("tmm7") _,
                                 options(nostack, readonly, preserves_flags),
                             ),
                         }
@@ -286,7 +297,14 @@ pub unsafe fn matmat_packed_i8_amx(
         p0 += m;
     }
     // SAFETY: AMX permission per the caller; releases the tiles this call configured.
-    unsafe { asm!("tilerelease", options(nostack, nomem, preserves_flags)) };
+    unsafe {
+        asm!(
+            "tilerelease",
+            out("tmm0") _, out("tmm1") _, out("tmm2") _, out("tmm3") _,
+            out("tmm4") _, out("tmm5") _, out("tmm6") _, out("tmm7") _,
+            options(nostack, nomem, preserves_flags),
+        );
+    };
 }
 
 /// The tile stores' buffer: 32 points × 32 outputs, rows 128 bytes apart.
@@ -304,7 +322,13 @@ pub(super) unsafe fn peak(iters: u64) -> u64 {
     // SAFETY: the caller guarantees AMX; tiles 0–7 are configured with 16 rows of 64 bytes; the
     // one store writes `out`'s 16 rows of 64 bytes.
     unsafe {
-        asm!("ldtilecfg [{}]", in(reg) cfg.0.as_ptr(), options(nostack, readonly, preserves_flags));
+        asm!(
+            "ldtilecfg [{}]",
+            in(reg) cfg.0.as_ptr(),
+            out("tmm0") _, out("tmm1") _, out("tmm2") _, out("tmm3") _,
+            out("tmm4") _, out("tmm5") _, out("tmm6") _, out("tmm7") _,
+            options(nostack, readonly, preserves_flags),
+        );
         asm!(
             "tilezero tmm0",
             "tilezero tmm1",
@@ -314,7 +338,9 @@ pub(super) unsafe fn peak(iters: u64) -> u64 {
             "tilezero tmm5",
             "tilezero tmm6",
             "tilezero tmm7",
-            options(nostack, nomem, preserves_flags)
+            out("tmm0") _, out("tmm1") _, out("tmm2") _, out("tmm3") _,
+            out("tmm4") _, out("tmm5") _, out("tmm6") _, out("tmm7") _,
+            options(nostack, nomem, preserves_flags),
         );
         for _ in 0..iters {
             asm!(
@@ -324,11 +350,23 @@ pub(super) unsafe fn peak(iters: u64) -> u64 {
                 "tdpbssd tmm3, tmm6, tmm7",
                 "tdpbssd tmm4, tmm6, tmm7",
                 "tdpbssd tmm5, tmm6, tmm7",
-                options(nostack, nomem, preserves_flags)
+                out("tmm0") _, out("tmm1") _, out("tmm2") _, out("tmm3") _,
+                out("tmm4") _, out("tmm5") _,
+                options(nostack, nomem, preserves_flags),
             );
         }
-        asm!("tilestored [{}+{}*1], tmm0", in(reg) out.as_mut_ptr(), in(reg) 64usize, options(nostack, preserves_flags));
-        asm!("tilerelease", options(nostack, nomem, preserves_flags));
+        asm!(
+            "tilestored [{}+{}*1], tmm0",
+            in(reg) out.as_mut_ptr(),
+            in(reg) 64usize,
+            options(nostack, preserves_flags),
+        );
+        asm!(
+            "tilerelease",
+            out("tmm0") _, out("tmm1") _, out("tmm2") _, out("tmm3") _,
+            out("tmm4") _, out("tmm5") _, out("tmm6") _, out("tmm7") _,
+            options(nostack, nomem, preserves_flags),
+        );
     }
     core::hint::black_box(out);
     iters * 6 * (TILE_ROWS * TILE_ROWS * TILE_K) as u64
