@@ -982,7 +982,7 @@ proptest! {
         (w, r, k, x, xs, p, b, n, s) in packed_shape(any_i8(), (3usize..10).prop_map(|c| 64 * c), 0..=70)
     ) {
         // `K` a multiple of 64 from 192 (AVX-512 VNNI on an AMX CPU) to 576 (on tiles from
-        // 256: `x86::amx::MIN_K`), and blocks of points past one (32) and two tile pairs, every
+        // 256: `kernels::x86::AMX_MIN_K`), and blocks of points past one (32) and two tile pairs, every
         // remainder of 16.
         check_packed(&w, r, k, &x, xs, p, &b, n, s);
     }

@@ -24,7 +24,8 @@
 //!   [`Isa::kernels`], so tests and benchmarks run every kernel this CPU has.
 //!
 //! Kernel sets: [`reference`](mod@reference); on x86_64 (module `x86`) AVX2, AVX-VNNI,
-//! AVX-512BW and AVX-512 VNNI; on Cortex-M with the `arm-dsp` feature, [`arm`] (with its
+//! AVX-512BW, AVX-512 VNNI and AMX-INT8 (the AVX-512 VNNI set with tile kernels for the wide
+//! packed int8 layers, where the OS grants the tile state); on Cortex-M with the `arm-dsp` feature, [`arm`] (with its
 //! FPv5 requantization with `arm-fpv5`, else its FPv4 one on a core with an FPU).
 //!
 //! # Cortex-M
@@ -60,8 +61,8 @@
 //! [`Kernels::matmat_packed_i8`] over it needs no
 //! horizontal sums and reads each point's inputs in place; [`Kernels::matmat_packed_i16`] does
 //! the same for the int16 first layer, whose five-input rows cost the row-major kernel more in
-//! horizontal sums than in products. Every x86 table (AVX-512 VNNI, AVX-VNNI, AVX-512BW, AVX2)
-//! has native packed kernels ([`Kernels::has_packed`]); every other table runs the packed
+//! horizontal sums than in products. Every x86 table (AMX, AVX-512 VNNI, AVX-VNNI, AVX-512BW,
+//! AVX2) has native packed kernels ([`Kernels::has_packed`]); every other table runs the packed
 //! references, so the packed engine ([`crate::infer::Plan::packed`]) works, and is tested,
 //! everywhere.
 //!

@@ -60,7 +60,7 @@ mod amx;
 mod packed;
 mod peak;
 
-pub use amx::{matmat_packed_i8_amx, request_tile_data};
+pub use amx::{matmat_packed_i8_amx, request_tile_data, MIN_K as AMX_MIN_K};
 
 pub use packed::{
     matmat_packed_i16_avx2, matmat_packed_i16_avx512bw, matmat_packed_i16_avx512vnni,

@@ -138,7 +138,8 @@ pub(super) fn cpu_has_amx(leaf7_edx: u32, xcr0: u64) -> bool {
 }
 
 /// [`crate::kernels::packed::matmat_packed_i8`], bit-exact, on AMX tiles where `K` is a
-/// multiple of 64 and at least [`MIN_K`] (and with [`matmat_packed_i8_avx512vnni`] otherwise).
+/// multiple of 64 and at least [`AMX_MIN_K`](super::AMX_MIN_K) (and with
+/// [`matmat_packed_i8_avx512vnni`] otherwise).
 ///
 /// # Safety
 /// The CPU must support AVX-512 (F, BW, VL, VNNI) and AMX-INT8, and this process must hold
