@@ -40,8 +40,10 @@
 //! process that asked for it: until then the first tile instruction raises `SIGILL`.
 //! [`request_tile_data`] asks (`arch_prctl(ARCH_REQ_XCOMP_PERM, XFEATURE_XTILEDATA)`, a
 //! system call made directly, as the core has no `std`); [`super::Features::detect`] offers AMX
-//! only where the CPU has it, the OS enabled it in `XCR0` and the request succeeded. On other
-//! systems the core does not offer AMX.
+//! only where the CPU has it, the OS enabled it in `XCR0` and the request succeeded (Linux
+//! refuses it, for one, where a thread's alternate signal stack is too small for the larger
+//! signal frame; the table is then AVX-512 VNNI's). On other systems the core does not offer
+//! AMX.
 
 use core::arch::asm;
 use core::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
