@@ -24,9 +24,10 @@
 //!   [`Isa::kernels`], so tests and benchmarks run every kernel this CPU has.
 //!
 //! Kernel sets: [`reference`](mod@reference); on x86_64 (module `x86`) AVX2, AVX-VNNI,
-//! AVX-512BW, AVX-512 VNNI and AMX-INT8 (the AVX-512 VNNI set with tile kernels for the wide
-//! packed int8 layers, where the OS grants the tile state); on Cortex-M with the `arm-dsp` feature, [`arm`] (with its
-//! FPv5 requantization with `arm-fpv5`, else its FPv4 one on a core with an FPU).
+//! AVX-512BW, AVX-512 VNNI and AMX-INT8 (the AVX-512 VNNI set with a tile kernel for the wide
+//! packed int8 layers, where the OS grants the tile state); on Cortex-M with the `arm-dsp`
+//! feature, [`arm`] (with its FPv5 requantization with `arm-fpv5`, else its FPv4 one on a core
+//! with an FPU).
 //!
 //! # Cortex-M
 //!
@@ -184,7 +185,7 @@ pub enum Isa {
     /// x86_64 AVX-512 VNNI: `vpdpbusd`/`vpdpwssd`, 512-bit.
     X86Avx512Vnni,
     /// x86_64 Intel AMX-INT8 (`tdpbsud` on tiles) for the packed int8 layers whose `K` is a
-    /// multiple of 64, and AVX-512 VNNI for everything else; needs the OS's permission for the
+    /// multiple of 64 and at least `x86::AMX_MIN_K` (256), and AVX-512 VNNI for everything else; needs the OS's permission for the
     /// tile state, which [`Kernels::detect`] asks for on Linux.
     X86Amx,
     /// Arm Cortex-M with the DSP extension: `SXTB16` + `SMLAD` ([`arm`]); built with the

@@ -96,6 +96,25 @@ impl TileConfig {
         }
         Self(c)
     }
+
+    /// `ldtilecfg`: configures the tiles (and zeroes them all).
+    ///
+    /// # Safety
+    /// AMX-TILE and the tile-data permission.
+    #[inline(always)]
+    unsafe fn load(&self) {
+        // SAFETY: the caller guarantees AMX; `new` made a valid palette-1 configuration (rows
+        // ≤ 16, 64 bytes per row, unused tiles and reserved bytes 0), 64 bytes read from `self`.
+        unsafe {
+            asm!(
+                "ldtilecfg [{}]",
+                in(reg) self.0.as_ptr(),
+                out("tmm0") _, out("tmm1") _, out("tmm2") _, out("tmm3") _,
+                out("tmm4") _, out("tmm5") _, out("tmm6") _, out("tmm7") _,
+                options(nostack, readonly, preserves_flags),
+            )
+        };
+    }
 }
 
 /// `XFEATURE_XTILEDATA`: the tile data's bit in `XCR0`.
@@ -179,18 +198,8 @@ pub unsafe fn matmat_packed_i8_amx(
         for (i, c) in corr.iter_mut().enumerate().take(m) {
             *c = vnni_correction(&x[(p0 + i) * x_stride..][..k]);
         }
-        let cfg = TileConfig::new(r0, r1);
-        // SAFETY: AMX permission per the caller; `cfg` is a valid palette-1 configuration
-        // (rows ≤ 16, 64 bytes per row), 64 bytes read from a live, aligned value.
-        unsafe {
-            asm!(
-                "ldtilecfg [{}]",
-                in(reg) cfg.0.as_ptr(),
-                out("tmm0") _, out("tmm1") _, out("tmm2") _, out("tmm3") _,
-                out("tmm4") _, out("tmm5") _, out("tmm6") _, out("tmm7") _,
-                options(nostack, readonly, preserves_flags),
-            )
-        };
+        // SAFETY: AMX permission per the caller.
+        unsafe { TileConfig::new(r0, r1).load() };
         // The block's input rows: points p0.. of `x` (call_dims checked that the n points fit).
         let a0 = &x[p0 * x_stride..][..(r0 - 1) * x_stride + k];
         let a1 = (r1 > 0).then(|| &x[(p0 + TILE_ROWS) * x_stride..][..(r1 - 1) * x_stride + k]);
@@ -299,39 +308,25 @@ pub unsafe fn matmat_packed_i8_amx(
         }
         p0 += m;
     }
-    // SAFETY: AMX permission per the caller; releases the tiles this call configured.
-    unsafe {
-        asm!(
-            "tilerelease",
-            out("tmm0") _, out("tmm1") _, out("tmm2") _, out("tmm3") _,
-            out("tmm4") _, out("tmm5") _, out("tmm6") _, out("tmm7") _,
-            options(nostack, nomem, preserves_flags),
-        );
-    };
+    // SAFETY: AMX permission per the caller.
+    unsafe { release_tiles() };
 }
 
 /// The tile stores' buffer: 32 points × 32 outputs, rows 128 bytes apart.
 #[repr(C, align(64))]
 struct Sums([[i32; SLICE]; BLOCK_POINTS]);
 
-/// Runs `iters` rounds of six independent `tdpbssd` (16 × 16 × 64 MACs each) on zeroed tiles
-/// and returns the MACs done, for [`super::peak_loop`].
+/// Runs `iters` rounds of six independent `tdpbssd` ([`TILE_MACS`] each) on zeroed tiles, for
+/// [`super::peak_loop`].
 ///
 /// # Safety
 /// As [`matmat_packed_i8_amx`]: AMX-INT8 and the tile-data permission.
-pub(super) unsafe fn peak(iters: u64) -> u64 {
-    let cfg = TileConfig::new(TILE_ROWS, TILE_ROWS);
+pub(super) unsafe fn peak(iters: u64) {
     let mut out = [[0i32; 16]; 16];
     // SAFETY: the caller guarantees AMX; tiles 0–7 are configured with 16 rows of 64 bytes; the
     // one store writes `out`'s 16 rows of 64 bytes.
     unsafe {
-        asm!(
-            "ldtilecfg [{}]",
-            in(reg) cfg.0.as_ptr(),
-            out("tmm0") _, out("tmm1") _, out("tmm2") _, out("tmm3") _,
-            out("tmm4") _, out("tmm5") _, out("tmm6") _, out("tmm7") _,
-            options(nostack, readonly, preserves_flags),
-        );
+        TileConfig::new(TILE_ROWS, TILE_ROWS).load();
         asm!(
             "tilezero tmm0",
             "tilezero tmm1",
@@ -364,13 +359,27 @@ pub(super) unsafe fn peak(iters: u64) -> u64 {
             in(reg) 64usize,
             options(nostack, preserves_flags),
         );
+        release_tiles();
+    }
+    core::hint::black_box(out);
+}
+
+/// MACs of one `tdpbssd`/`tdpbsud` on full tiles: 16 × 16 × 64.
+pub(super) const TILE_MACS: u64 = (TILE_ROWS * TILE_ROWS * TILE_K) as u64;
+
+/// `tilerelease`: every tile back to its initial state, the configuration cleared.
+///
+/// # Safety
+/// AMX-TILE and the tile-data permission.
+#[inline(always)]
+unsafe fn release_tiles() {
+    // SAFETY: the caller guarantees AMX; the instruction touches no memory.
+    unsafe {
         asm!(
             "tilerelease",
             out("tmm0") _, out("tmm1") _, out("tmm2") _, out("tmm3") _,
             out("tmm4") _, out("tmm5") _, out("tmm6") _, out("tmm7") _,
             options(nostack, nomem, preserves_flags),
-        );
-    }
-    core::hint::black_box(out);
-    iters * 6 * (TILE_ROWS * TILE_ROWS * TILE_K) as u64
+        )
+    };
 }

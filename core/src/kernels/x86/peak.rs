@@ -27,12 +27,13 @@ const CHAINS: usize = 12;
 /// `amx` runs rounds of six independent `tdpbssd` (16 × 16 × 64 = 16,384 MACs each) instead.
 pub fn peak_loop(isa: Isa, iters: u64) -> Option<u64> {
     if isa == Isa::X86Amx {
-        iters.checked_mul(6 * 16 * 16 * 64)?;
+        let macs = iters.checked_mul(6 * super::amx::TILE_MACS)?;
         if !Features::detect().supports(isa) {
             return None;
         }
         // SAFETY: `detect` just confirmed AMX-INT8 and the tile-data permission.
-        return Some(unsafe { super::amx::peak(iters) });
+        unsafe { super::amx::peak(iters) };
+        return Some(macs);
     }
     let per_instruction = match isa {
         Isa::X86Avx512Vnni => 64,
