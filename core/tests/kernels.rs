@@ -979,11 +979,12 @@ proptest! {
 
     #[test]
     fn i8_packed_kernels_match_reference_whole_tiles(
-        (w, r, k, x, xs, p, b, n, s) in packed_shape(any_i8(), (3usize..10).prop_map(|c| 64 * c), 0..=70)
+        (w, r, k, x, xs, p, b, n, s) in
+            packed_shape(any_i8(), (3usize..10).prop_map(|c| 64 * c), 0..=70)
     ) {
         // `K` a multiple of 64 from 192 (AVX-512 VNNI on an AMX CPU) to 576 (on tiles from
-        // 256: `kernels::x86::AMX_MIN_K`), and blocks of points past one (32) and two tile pairs, every
-        // remainder of 16.
+        // 256: `kernels::x86::AMX_MIN_K`), and blocks of points past one (32) and two tile
+        // pairs, every remainder of 16.
         check_packed(&w, r, k, &x, xs, p, &b, n, s);
     }
 
@@ -1259,7 +1260,7 @@ fn peak_loop_runs_every_family_this_cpu_has() {
         if let Some(m) = macs {
             if isa == Isa::X86Amx {
                 // 1000 rounds of six `tdpbssd`, 16 × 16 × 64 MACs each.
-                assert_eq!(m, 1000 * 6 * 16_384);
+                assert_eq!(m, 1000 * 6 * 16 * 16 * 64);
             } else {
                 // 1000 rounds of 12 instructions of 16 to 64 MACs each.
                 assert!(m % 12_000 == 0 && (16..=64).contains(&(m / 12_000)), "{m}");

@@ -185,8 +185,9 @@ pub enum Isa {
     /// x86_64 AVX-512 VNNI: `vpdpbusd`/`vpdpwssd`, 512-bit.
     X86Avx512Vnni,
     /// x86_64 Intel AMX-INT8 (`tdpbsud` on tiles) for the packed int8 layers whose `K` is a
-    /// multiple of 64 and at least `x86::AMX_MIN_K` (256), and AVX-512 VNNI for everything else; needs the OS's permission for the
-    /// tile state, which [`Kernels::detect`] asks for on Linux.
+    /// multiple of 64 and at least `x86::AMX_MIN_K` (256), and AVX-512 VNNI for everything
+    /// else; needs the OS's permission for the tile state, which [`Kernels::detect`] asks for on
+    /// Linux.
     X86Amx,
     /// Arm Cortex-M with the DSP extension: `SXTB16` + `SMLAD` ([`arm`]); built with the
     /// `arm-dsp` feature on `target_arch = "arm"` only.
