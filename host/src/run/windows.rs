@@ -74,9 +74,9 @@ impl WindowEvents<'_> {
         mut map: impl FnMut(Event) -> Option<Event>,
     ) {
         // Two passes, the first without a branch on the camera: the cameras of a multi-camera
-        // stream interleave at random, and a branch on them was mispredicted for about every
-        // other event. Each event is written at the cursor, which moves on only for `camera`'s;
-        // then `map` runs over those in place.
+        // stream interleave at random, which makes such a branch hard to predict (1.05–1.17×
+        // faster on the bundled clip this way). Each event is written at the cursor, which moves
+        // on only for `camera`'s; then `map` runs over those in place.
         let base = out.len();
         out.resize(base + self.events.len(), Event::default());
         let dst = &mut out[base..];
