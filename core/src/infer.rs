@@ -598,10 +598,16 @@ impl<'m> Plan<'m> {
                 let code = coding.code(p);
                 dst[..FEATURES].copy_from_slice(&code);
             }
+            // Whether the last layer went straight into the pooling (a pooled kernel).
+            let mut pooled_last = false;
             for i in 0..=last {
                 let l = m.layer(i);
                 let Bias::I32(bias) = l.bias else {
                     return Err(InferError::DType); // ruled out by the plan
+                };
+                let requant = Requant {
+                    scales: l.scales,
+                    leaky: l.desc.leaky,
                 };
                 let (k_in, out_dim) = (l.desc.in_dim as usize, l.desc.out_dim as usize);
                 let acc = acc.get_mut(..n * out_dim).unwrap_or_default();
@@ -621,7 +627,8 @@ impl<'m> Plan<'m> {
                         };
                         let coded = inputs.get(..n * 8).unwrap_or_default();
                         let inputs = (coded, acts.get(src..).unwrap_or_default());
-                        run(k, layer, inputs, acts_len, n, bias, acc, out_dim);
+                        let pool = (i == last).then_some((requant, &mut *max, &mut *sum));
+                        pooled_last = run(k, layer, inputs, acts_len, n, bias, acc, out_dim, pool);
                     }
                     (Weights::I16(w), None) => {
                         for (p, y) in acc.chunks_exact_mut(out_dim.max(1)).enumerate() {
@@ -657,18 +664,19 @@ impl<'m> Plan<'m> {
                     }
                     (Weights::F32(_), None) => return Err(InferError::DType),
                 }
-                let requant = Requant {
-                    scales: l.scales,
-                    leaky: l.desc.leaky,
-                };
+                if pooled_last {
+                    break;
+                }
                 let at = offset(offs, i);
                 for (p, y) in acc.chunks_exact(out_dim.max(1)).enumerate() {
                     k.requantize(y, requant, row_mut(acts, p, acts_len, at, out_dim));
                 }
             }
-            let last_layer = offset(offs, last)..offset(offs, last + 1);
-            for act in acts.chunks_exact(acts_len.max(1)).take(n) {
-                k.pool_i8(max, sum, act.get(last_layer.clone()).unwrap_or_default());
+            if !pooled_last {
+                let last_layer = offset(offs, last)..offset(offs, last + 1);
+                for act in acts.chunks_exact(acts_len.max(1)).take(n) {
+                    k.pool_i8(max, sum, act.get(last_layer.clone()).unwrap_or_default());
+                }
             }
         }
         let n = points.len() as u32;
@@ -879,12 +887,27 @@ enum PackedLayer<'b> {
 }
 
 /// [`run_packed_layer`]'s type.
-type PackedLayerFn =
-    fn(&Kernels, PackedLayer<'_>, (&[i16], &[i8]), usize, usize, &[i32], &mut [i32], usize);
+type PackedLayerFn = fn(
+    &Kernels,
+    PackedLayer<'_>,
+    (&[i16], &[i8]),
+    usize,
+    usize,
+    &[i32],
+    &mut [i32],
+    usize,
+    Option<PoolInto<'_>>,
+) -> bool;
+
+/// The last point layer's pooling: its requantization and the running max and sum.
+type PoolInto<'a> = (Requant<'a>, &'a mut [i8], &'a mut [i32]);
 
 /// One packed point layer for a block of `n` points: the int16 first layer over the coded
 /// points (`inputs.0`, 8 apart), an int8 layer over the activation rows from its sources on
-/// (`inputs.1`, `acts_len` apart); outputs `out_dim` apart in `acc`.
+/// (`inputs.1`, `acts_len` apart); outputs `out_dim` apart in `acc`. With `pool` (the last
+/// layer), where the kernels have a pooled kernel for the layer
+/// ([`Kernels::packed_pool_i8`]), the outputs go into the pooling instead, `acc` untouched:
+/// returns whether they did.
 #[allow(clippy::too_many_arguments)]
 fn run_packed_layer(
     k: &Kernels,
@@ -895,11 +918,19 @@ fn run_packed_layer(
     bias: &[i32],
     acc: &mut [i32],
     out_dim: usize,
-) {
+    pool: Option<PoolInto<'_>>,
+) -> bool {
+    if let (PackedLayer::I8(w), Some((requant, max, sum))) = (layer, pool) {
+        if let Some(pooled) = k.packed_pool_i8(&w) {
+            pooled(&w, acts, acts_len, n, bias, requant, max, sum);
+            return true;
+        }
+    }
     match layer {
         PackedLayer::I16(w) => k.matmat_packed_i16(&w, coded, 8, n, bias, acc, out_dim),
         PackedLayer::I8(w) => k.matmat_packed_i8(&w, acts, acts_len, n, bias, acc, out_dim),
     }
+    false
 }
 
 /// Packs `model`'s int8 point layers and its int16 first layer into `buf` (at least

@@ -93,7 +93,23 @@ pub fn requantize(acc: i32, scale: f32, leaky: Option<f32>) -> i8 {
     // infinite scale times 0) gives -129 and saturates to -128 instead of passing its bits on.
     // (`Model::parse` refuses non-finite scales; the Cortex-M kernels'
     // `kernels::arm::requantize_i8`, FPv5 and FPv4, rely on it.)
-    round_to_i32(at_most(at_least(v, -129.0), 128.0)).clamp(-128, 127) as i8
+    saturate(v) as i8
+}
+
+/// [`requantize`]'s last step: `v` rounded half to even and saturated to `-128..=127`.
+#[inline(always)]
+fn saturate(v: f32) -> i32 {
+    round_to_i32(at_most(at_least(v, -129.0), 128.0)).clamp(-128, 127)
+}
+
+/// [`requantize`] as an i32 (in `-128..=127`), with the LeakyReLU slope as a number: `alpha`
+/// 1 for none (`v · 1 = v` exactly for every f32), so that
+/// `requantize_wide(acc, scale, leaky.unwrap_or(1.0)) as i8 == requantize(acc, scale, leaky)`.
+/// No branch on the option and no narrowing: the loop a pooled kernel keeps in registers.
+#[inline(always)]
+pub fn requantize_wide(acc: i32, scale: f32, alpha: f32) -> i32 {
+    let v = acc as f32 * scale;
+    saturate(if v < 0.0 { v * alpha } else { v })
 }
 
 /// One layer's requantization: per-output-channel multipliers and the optional LeakyReLU slope,
@@ -243,6 +259,33 @@ mod tests {
         for i in -200_000..200_000 {
             let v = i as f32 * 0.000_77;
             assert_eq!(round_to_i32(v) as f32, v.round_ties_even(), "{v}");
+        }
+    }
+
+    #[test]
+    fn requantize_wide_is_requantize() {
+        // Accumulators across the i32 range and at rounding ties, scales of both signs
+        // (a negative one flips which side the slope applies to), with and without the slope.
+        let mut s = 0x2545_F491_4F6C_DD1Du64;
+        let mut accs: Vec<i32> = vec![0, 1, -1, 250, -250, 350, -350, i32::MAX, i32::MIN];
+        for _ in 0..20_000 {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            accs.push((s >> 16) as i32 >> (s % 24));
+        }
+        for &scale in &[1.0, 0.5, 0.01, 3.7e-4, -0.02, 1e-9, 0.0] {
+            for leaky in [None, Some(LEAKY_ALPHA), Some(0.2), Some(-0.5)] {
+                for &a in &accs {
+                    let wide = requantize_wide(a, scale, leaky.unwrap_or(1.0));
+                    assert_eq!(
+                        wide as i8,
+                        requantize(a, scale, leaky),
+                        "{a} {scale} {leaky:?}"
+                    );
+                    assert!((-128..=127).contains(&wide));
+                }
+            }
         }
     }
 

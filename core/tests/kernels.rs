@@ -820,6 +820,114 @@ fn check_packed<T: PackedKernel>(
     }
 }
 
+/// Checks the specification of the pooled kernel ([`packed::matmat_packed_pool_i8`]) and
+/// every table's native one ([`Kernels::packed_pool_i8`]) against the exact sums, each
+/// requantized by `quant::requantize` and pooled one at a time, from a running max and sum
+/// that are not at their initial values. Scales, slope and the pooled state come from `seed`;
+/// `pooled` is the length of `scales`, `max` and `sum` (one of them a row short one time in
+/// four).
+#[allow(clippy::too_many_arguments)]
+fn check_pooled(
+    w: &[i8],
+    rows: usize,
+    k: usize,
+    x: &[i8],
+    x_stride: usize,
+    points: usize,
+    bias: &[i32],
+    pooled: usize,
+    seed: u64,
+) {
+    use evpose_core::quant::{requantize, Requant, LEAKY_ALPHA};
+    let mut s = seed | 1;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        s
+    };
+    let short = |n: usize, which: u64| {
+        if seed % 4 == which {
+            n.saturating_sub(1)
+        } else {
+            n
+        }
+    };
+    // Scales that put the sums anywhere from saturated to zero, a few negative.
+    let scales: Vec<f32> = (0..short(pooled, 1))
+        .map(|_| {
+            let r = next();
+            let m = 2f32.powi(-((r % 24) as i32) - 4);
+            if r % 16 == 0 {
+                -m
+            } else {
+                m
+            }
+        })
+        .collect();
+    let leaky = [None, Some(LEAKY_ALPHA), Some(0.25)][(seed % 3) as usize];
+    let max0: Vec<i8> = (0..short(pooled, 2)).map(|_| next() as i8).collect();
+    let sum0: Vec<i32> = (0..short(pooled, 3)).map(|_| next() as i32).collect();
+    let o = rows
+        .min(bias.len())
+        .min(scales.len())
+        .min(max0.len())
+        .min(sum0.len());
+    let (mut want_max, mut want_sum) = (max0.clone(), sum0.clone());
+    if o > 0 {
+        for p in 0..points {
+            if p * x_stride + k > x.len() {
+                break;
+            }
+            let e = exact(&w[..o * k], &x[p * x_stride..][..k], bias, o);
+            for (j, &e) in e.iter().enumerate() {
+                let v = requantize(e as i32, scales[j], leaky);
+                want_max[j] = want_max[j].max(v);
+                want_sum[j] = want_sum[j].wrapping_add(i32::from(v));
+            }
+        }
+    }
+    let requant = Requant {
+        scales: &scales,
+        leaky,
+    };
+    let mut buf = pack_for(w, rows, k);
+    let (pw, _) = PackedI8::pack(w, rows, k, &mut buf).expect("pack");
+    let ctx = format!(
+        "rows {rows}, K {k}, x {} stride {x_stride}, points {points}, bias {}, scales {}, \
+         max {}, sum {}, leaky {leaky:?}",
+        x.len(),
+        bias.len(),
+        scales.len(),
+        max0.len(),
+        sum0.len()
+    );
+    let (mut max, mut sum) = (max0.clone(), sum0.clone());
+    packed::matmat_packed_pool_i8(&pw, x, x_stride, points, bias, requant, &mut max, &mut sum);
+    assert_eq!(
+        (&max, &sum),
+        (&want_max, &want_sum),
+        "pooled specification, {ctx}"
+    );
+    for kern in with_reference_table() {
+        let native = kern.packed_pool_i8(&pw);
+        // The AMX table pools on tiles wherever they take the layer.
+        if kern.isa() == Isa::X86Amx {
+            assert_eq!(native.is_some(), k >= 256 && k.is_multiple_of(64), "{ctx}");
+        }
+        if let Some(f) = native {
+            let (mut max, mut sum) = (max0.clone(), sum0.clone());
+            f(&pw, x, x_stride, points, bias, requant, &mut max, &mut sum);
+            assert_eq!(
+                (&max, &sum),
+                (&want_max, &want_sum),
+                "{} pooled, {ctx}",
+                kern.name()
+            );
+        }
+    }
+}
+
 /// `(w, rows, k, x, x_stride, points, bias, out_len, out_stride)`: up to 140 rows (partial and
 /// several row groups), `points` (up to 30 is past one 24-point pass), point rows that overlap,
 /// touch or leave gaps, and `x`, `bias` and `out` that may be short.
@@ -986,6 +1094,18 @@ proptest! {
         // 256: `kernels::x86::AMX_MIN_K`), and blocks of points past one (32) and two tile
         // pairs, every remainder of 16.
         check_packed(&w, r, k, &x, xs, p, &b, n, s);
+    }
+
+    #[test]
+    fn i8_pooled_kernels_match_reference(
+        (w, r, k, x, xs, p, b, _, _) in
+            packed_shape(any_i8(), prop_oneof![1usize..80, (1usize..10).prop_map(|c| 64 * c)], 0..=70),
+        extra in 0usize..3,
+        seed in any::<u64>(),
+    ) {
+        // The tiles' shapes (K a multiple of 64 from 256, blocks of points past one and two
+        // tile pairs) and the others, where no table pools natively and the specification runs.
+        check_pooled(&w, r, k, &x, xs, p, &b, r + extra, seed);
     }
 
     #[test]

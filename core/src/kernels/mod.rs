@@ -87,7 +87,7 @@ pub mod reference;
 #[cfg(target_arch = "x86_64")]
 pub mod x86;
 
-pub use packed::{MatmatPackedI16, MatmatPackedI8, PackedI16, PackedI8};
+pub use packed::{MatmatPackedI16, MatmatPackedI8, MatmatPackedPoolI8, PackedI16, PackedI8};
 
 /// The f32 kernel signature: `(w, x, bias, out)`, see [`reference::matvec_f32`].
 pub type MatvecF32 = fn(&[f32], &[f32], &[f32], &mut [f32]);
@@ -460,6 +460,20 @@ impl Kernels {
             .packed_kernels()
             .map_or(packed::matmat_packed_i8 as MatmatPackedI8, |k| k.0);
         kernel(w, x, x_stride, points, bias, out, out_stride)
+    }
+
+    /// This table's native kernel that runs the packed int8 layer `w` straight into pooling
+    /// ([`MatmatPackedPoolI8`], bit-exact with [`packed::matmat_packed_pool_i8`]), if it has
+    /// one for `w`'s shape: the AMX table's, where `K` is a multiple of 64 from
+    /// `x86::AMX_MIN_K`. The engine runs its last point layer with it where there is one,
+    /// and otherwise requantizes and pools [`Kernels::matmat_packed_i8`]'s int32 rows.
+    pub fn packed_pool_i8(&self, w: &PackedI8<'_>) -> Option<MatmatPackedPoolI8> {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(k) = x86::packed_pool_kernel(self, w) {
+            return Some(k);
+        }
+        let _ = w;
+        None
     }
 
     /// [`packed::matmat_packed_i16`], bit-exact, with this table's packed kernel (the reference

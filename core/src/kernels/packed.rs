@@ -264,6 +264,41 @@ pub type MatmatPackedI8 = fn(&PackedI8<'_>, &[i8], usize, usize, &[i32], &mut [i
 /// [`MatmatPackedI8`] for int16 weights and inputs.
 pub type MatmatPackedI16 = fn(&PackedI16<'_>, &[i16], usize, usize, &[i32], &mut [i32], usize);
 
+/// The pooled int8 kernel's signature: `(w, x, x_stride, points, bias, requant, max, sum)`,
+/// a [`MatmatPackedI8`] call whose outputs go straight into the engine's pooling instead of
+/// to memory: for `(P, O) =` [`pool_dims`] and each `p < P`, `o < O`,
+///
+/// `v = requantize(bias[o] + Σ_{j<K} w[o][j] · x[p·x_stride + j], requant.scales[o], leaky)`,
+/// `max[o] = max(max[o], v)`, `sum[o] += v` (wrapping),
+///
+/// with [`crate::quant::requantize`]: the engine's last point layer, requantized and pooled
+/// while its sums are still in registers. [`matmat_packed_pool_i8`] is its specification.
+pub type MatmatPackedPoolI8 = fn(
+    &PackedI8<'_>,
+    &[i8],
+    usize,
+    usize,
+    &[i32],
+    crate::quant::Requant<'_>,
+    &mut [i8],
+    &mut [i32],
+);
+
+/// `(P, O)`, the points and rows a [`MatmatPackedPoolI8`] kernel pools: [`packed_dims`] with
+/// `O` also limited by the lengths of `scales`, `max` and `sum`, and no output rows to fit.
+pub const fn pool_dims(
+    w: &PackedI8<'_>,
+    x_len: usize,
+    x_stride: usize,
+    points: usize,
+    bias_len: usize,
+    pooled_len: usize,
+) -> (usize, usize) {
+    let o = min(bias_len, pooled_len);
+    // Rows `o` apart in an `out` without end: only `x` limits the points.
+    packed_dims(w, x_len, x_stride, points, o, usize::MAX, o)
+}
+
 /// `(P, O)`, the points and rows a [`MatmatPackedI8`] kernel computes.
 ///
 /// `O = min(w.rows(), bias_len, out_stride)`. `P` is `points`, limited to the rows whose inputs
@@ -339,6 +374,34 @@ pub fn matmat_packed_i16(
     out_stride: usize,
 ) {
     matmat_packed(w, x, x_stride, points, bias, out, out_stride)
+}
+
+/// The specification of [`MatmatPackedPoolI8`]: [`matmat_packed_i8`]'s sums, one at a time,
+/// through [`crate::quant::requantize`] into `max` and `sum`.
+#[allow(clippy::too_many_arguments)]
+pub fn matmat_packed_pool_i8(
+    w: &PackedI8<'_>,
+    x: &[i8],
+    x_stride: usize,
+    points: usize,
+    bias: &[i32],
+    requant: crate::quant::Requant<'_>,
+    max: &mut [i8],
+    sum: &mut [i32],
+) {
+    let pooled = min(requant.scales.len(), min(max.len(), sum.len()));
+    let (points, rows) = pool_dims(w, x.len(), x_stride, points, bias.len(), pooled);
+    for p in 0..points {
+        let x = &x[p * x_stride..][..w.k];
+        for o in 0..rows {
+            let acc = x.iter().enumerate().fold(bias[o], |acc, (j, &x)| {
+                acc.wrapping_add(i32::from(w.weight(o, j)).wrapping_mul(i32::from(x)))
+            });
+            let v = crate::quant::requantize(acc, requant.scales[o], requant.leaky);
+            max[o] = max[o].max(v);
+            sum[o] = sum[o].wrapping_add(i32::from(v));
+        }
+    }
 }
 
 fn matmat_packed<T: Lane>(

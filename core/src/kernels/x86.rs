@@ -60,7 +60,9 @@ mod amx;
 mod packed;
 mod peak;
 
-pub use amx::{matmat_packed_i8_amx, request_tile_data, MIN_K as AMX_MIN_K};
+pub use amx::{
+    matmat_packed_i8_amx, matmat_packed_pool_i8_amx, request_tile_data, MIN_K as AMX_MIN_K,
+};
 
 pub use packed::{
     matmat_packed_i16_avx2, matmat_packed_i16_avx512bw, matmat_packed_i16_avx512vnni,
@@ -245,6 +247,18 @@ pub(super) fn f32_kernel(k: &Kernels) -> Option<super::MatvecF32> {
     }
 }
 
+/// The native pooled packed kernel of an x86 table's ISA for `w`'s shape, if it has one (the
+/// AMX table, where the tiles take `w`); the same invariant as [`f32_kernel`].
+pub(super) fn packed_pool_kernel(
+    k: &Kernels,
+    w: &super::PackedI8<'_>,
+) -> Option<super::MatmatPackedPoolI8> {
+    match k.isa() {
+        Isa::X86Amx if amx::takes(w) => Some(amx_pool),
+        _ => None,
+    }
+}
+
 /// The native packed kernels (int8, int16) of an x86 table's ISA, if it has them; the same
 /// invariant as [`f32_kernel`].
 pub(super) fn packed_kernels(
@@ -357,6 +371,23 @@ checked_pk! {
     avx2_i16pk => matmat_packed_i16_avx2(i16, super::PackedI16<'_>);
     avx512bw_i8pk => matmat_packed_i8_avx512bw(i8, super::PackedI8<'_>);
     avx512bw_i16pk => matmat_packed_i16_avx512bw(i16, super::PackedI16<'_>);
+}
+
+/// [`matmat_packed_pool_i8_amx`] behind the same kind of wrapper.
+#[allow(clippy::too_many_arguments)]
+fn amx_pool(
+    w: &super::PackedI8<'_>,
+    x: &[i8],
+    x_stride: usize,
+    points: usize,
+    bias: &[i32],
+    requant: crate::quant::Requant<'_>,
+    max: &mut [i8],
+    sum: &mut [i32],
+) {
+    // SAFETY: as for `checked!`: only reachable through an AMX `Kernels`
+    // (`packed_pool_kernel`), whose ISA the CPU supports.
+    unsafe { matmat_packed_pool_i8_amx(w, x, x_stride, points, bias, requant, max, sum) }
 }
 
 checked_mm! {
