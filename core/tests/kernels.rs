@@ -911,9 +911,16 @@ fn check_pooled(
     );
     for kern in with_reference_table() {
         let native = kern.packed_pool_i8(&pw);
-        // The AMX table pools on tiles wherever they take the layer.
-        if kern.isa() == Isa::X86Amx {
-            assert_eq!(native.is_some(), k >= 256 && k.is_multiple_of(64), "{ctx}");
+        // The VNNI tables (and AMX, on tiles or on AVX-512 VNNI) pool every shape.
+        if matches!(
+            kern.isa(),
+            Isa::X86Amx | Isa::X86Avx512Vnni | Isa::X86AvxVnni
+        ) {
+            assert!(
+                native.is_some(),
+                "{} has no pooled kernel, {ctx}",
+                kern.name()
+            );
         }
         if let Some(f) = native {
             let (mut max, mut sum) = (max0.clone(), sum0.clone());
@@ -1104,7 +1111,7 @@ proptest! {
         seed in any::<u64>(),
     ) {
         // The tiles' shapes (K a multiple of 64 from 256, blocks of points past one and two
-        // tile pairs) and the others, where no table pools natively and the specification runs.
+        // tile pairs) and the others (the VNNI tables' register tiles and their tails).
         check_pooled(&w, r, k, &x, xs, p, &b, r + extra, seed);
     }
 

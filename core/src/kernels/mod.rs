@@ -464,9 +464,10 @@ impl Kernels {
 
     /// This table's native kernel that runs the packed int8 layer `w` straight into pooling
     /// ([`MatmatPackedPoolI8`], bit-exact with [`packed::matmat_packed_pool_i8`]), if it has
-    /// one for `w`'s shape: the AMX table's, where `K` is a multiple of 64 from
-    /// `x86::AMX_MIN_K`. The engine runs its last point layer with it where there is one,
-    /// and otherwise requantizes and pools [`Kernels::matmat_packed_i8`]'s int32 rows.
+    /// one for `w`'s shape: the VNNI tables' (AVX-512 VNNI, AVX-VNNI) for every shape, the AMX
+    /// table's on tiles where `K` is a multiple of 64 from `x86::AMX_MIN_K` and AVX-512 VNNI's
+    /// otherwise. The engine runs its last point layer with it where there is one, and
+    /// otherwise requantizes and pools [`Kernels::matmat_packed_i8`]'s int32 rows.
     pub fn packed_pool_i8(&self, w: &PackedI8<'_>) -> Option<MatmatPackedPoolI8> {
         #[cfg(target_arch = "x86_64")]
         if let Some(k) = x86::packed_pool_kernel(self, w) {

@@ -67,7 +67,8 @@ pub use amx::{
 pub use packed::{
     matmat_packed_i16_avx2, matmat_packed_i16_avx512bw, matmat_packed_i16_avx512vnni,
     matmat_packed_i16_avxvnni, matmat_packed_i8_avx2, matmat_packed_i8_avx512bw,
-    matmat_packed_i8_avx512vnni, matmat_packed_i8_avxvnni,
+    matmat_packed_i8_avx512vnni, matmat_packed_i8_avxvnni, matmat_packed_pool_i8_avx512vnni,
+    matmat_packed_pool_i8_avxvnni,
 };
 pub use peak::peak_loop;
 
@@ -248,13 +249,16 @@ pub(super) fn f32_kernel(k: &Kernels) -> Option<super::MatvecF32> {
 }
 
 /// The native pooled packed kernel of an x86 table's ISA for `w`'s shape, if it has one (the
-/// AMX table, where the tiles take `w`); the same invariant as [`f32_kernel`].
+/// VNNI tables; the AMX table's runs on tiles where they take `w`, else AVX-512 VNNI's); the
+/// same invariant as [`f32_kernel`].
 pub(super) fn packed_pool_kernel(
     k: &Kernels,
     w: &super::PackedI8<'_>,
 ) -> Option<super::MatmatPackedPoolI8> {
     match k.isa() {
         Isa::X86Amx if amx::takes(w) => Some(amx_pool),
+        Isa::X86Amx | Isa::X86Avx512Vnni => Some(avx512vnni_pool),
+        Isa::X86AvxVnni => Some(avxvnni_pool),
         _ => None,
     }
 }
@@ -373,21 +377,31 @@ checked_pk! {
     avx512bw_i16pk => matmat_packed_i16_avx512bw(i16, super::PackedI16<'_>);
 }
 
-/// [`matmat_packed_pool_i8_amx`] behind the same kind of wrapper.
-#[allow(clippy::too_many_arguments)]
-fn amx_pool(
-    w: &super::PackedI8<'_>,
-    x: &[i8],
-    x_stride: usize,
-    points: usize,
-    bias: &[i32],
-    requant: crate::quant::Requant<'_>,
-    max: &mut [i8],
-    sum: &mut [i32],
-) {
-    // SAFETY: as for `checked!`: only reachable through an AMX `Kernels`
-    // (`packed_pool_kernel`), whose ISA the CPU supports.
-    unsafe { matmat_packed_pool_i8_amx(w, x, x_stride, points, bias, requant, max, sum) }
+/// The pooled packed kernels behind the same kind of wrapper.
+macro_rules! checked_pool {
+    ($($name:ident => $kernel:ident;)*) => {$(
+        #[allow(clippy::too_many_arguments)]
+        fn $name(
+            w: &super::PackedI8<'_>,
+            x: &[i8],
+            x_stride: usize,
+            points: usize,
+            bias: &[i32],
+            requant: crate::quant::Requant<'_>,
+            max: &mut [i8],
+            sum: &mut [i32],
+        ) {
+            // SAFETY: as for `checked!`: only reachable through a `Kernels`
+            // (`packed_pool_kernel`) whose ISA the CPU supports.
+            unsafe { $kernel(w, x, x_stride, points, bias, requant, max, sum) }
+        }
+    )*};
+}
+
+checked_pool! {
+    amx_pool => matmat_packed_pool_i8_amx;
+    avx512vnni_pool => matmat_packed_pool_i8_avx512vnni;
+    avxvnni_pool => matmat_packed_pool_i8_avxvnni;
 }
 
 checked_mm! {

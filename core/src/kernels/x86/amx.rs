@@ -58,9 +58,9 @@ use core::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
 
 use core::ops::Range;
 
-use super::matmat_packed_i8_avx512vnni;
 use super::vnni_correction;
-use crate::kernels::packed::{call_dims, matmat_packed_pool_i8, pool_dims, PackedI8, GROUP_ROWS};
+use super::{matmat_packed_i8_avx512vnni, matmat_packed_pool_i8_avx512vnni};
+use crate::kernels::packed::{call_dims, pool_dims, PackedI8, GROUP_ROWS};
 use crate::quant::{requantize_wide, Requant};
 
 /// Inputs per tile row: 64 bytes.
@@ -205,9 +205,8 @@ pub unsafe fn matmat_packed_i8_amx(
 
 /// [`crate::kernels::packed::matmat_packed_pool_i8`], bit-exact, on AMX tiles: the last point
 /// layer's sums requantized and pooled from the tile stores' buffer, never written to memory
-/// as int32 rows, nor as int8 ones. Where the tiles do not take `w`
-/// ([`takes`]: [`crate::kernels::Kernels::packed_pool_i8`] offers this kernel only where they
-/// do) it runs the specification.
+/// as int32 rows, nor as int8 ones. Where the tiles do not take `w` ([`takes`]) it runs
+/// [`matmat_packed_pool_i8_avx512vnni`].
 ///
 /// # Safety
 /// As [`matmat_packed_i8_amx`].
@@ -224,7 +223,10 @@ pub unsafe fn matmat_packed_pool_i8_amx(
     sum: &mut [i32],
 ) {
     if !takes(w) {
-        return matmat_packed_pool_i8(w, x, x_stride, points, bias, requant, max, sum);
+        // SAFETY: the caller guarantees AVX-512 VNNI.
+        return unsafe {
+            matmat_packed_pool_i8_avx512vnni(w, x, x_stride, points, bias, requant, max, sum)
+        };
     }
     let pooled = requant.scales.len().min(max.len()).min(sum.len());
     let (n, o) = pool_dims(w, x.len(), x_stride, points, bias.len(), pooled);

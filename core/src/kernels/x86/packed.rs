@@ -20,14 +20,23 @@
 //! horizontal sums: lane `i` of accumulator `q` is output `LANES·q + i` of the slice, stored as
 //! is. Each point's step of inputs (four bytes) is broadcast from memory.
 //!
-//! Tiles are the outer loop: one tile's points run through every row group, so a layer's
-//! weights stream through once per six points (from L2 for the paper's 512 KiB conv5) while
-//! the points' inputs stay in L1, and `128·Σx` (the correction for the int8 weights' `+128`
-//! offset) is computed once per point. On this project's Zen 5 VM, conv5 in blocks of 16 points
-//! runs at 495 GMAC/s this way (`benches/kernels.rs`, `packed/avx512vnni`), 94 % of the 524
-//! GMAC/s `kernels::peak_loop` measures; the other order, each row group's 32 KiB kept in L1
-//! while every tile passes over it, measured about 340 GMAC/s with four-point tiles (a timing
-//! loop, on the same machine while it was busy).
+//! Row groups are the outer loop over a pass of up to [`SUPER`] tiles (24 points, the engine's
+//! block): each group's weights (32 KiB for the paper's conv5, whose 512 KiB live in L2) are
+//! read from L2 once per pass and from L1 by the pass's other tiles, while the pass's inputs
+//! (12 KiB for conv5) stay in L1, and `128·Σx` (the correction for the int8 weights' `+128`
+//! offset) is computed once per point. With one tile per pass (the weights streamed from L2
+//! once per six points), conv5 in blocks of 16 points ran at 495 GMAC/s on this project's Zen 5
+//! VM (`benches/kernels.rs`, `packed/avx512vnni`), 94 % of the 524 GMAC/s
+//! `kernels::peak_loop` measures, but at 52–55 % of the peak on an Intel Xeon (Emerald Rapids)
+//! VM, where passes of four tiles ran 5–15 % faster (README, "Pooled epilogue on AVX-512 VNNI");
+//! a whole layer per row group (every tile of the call over each group's weights in L1, four-point
+//! tiles) measured about 340 GMAC/s on the Zen 5 (a timing loop, on the same machine while it
+//! was busy).
+//!
+//! The engine's last point layer can skip memory altogether: the pooled kernels
+//! ([`matmat_packed_pool_i8_avx512vnni`], [`matmat_packed_pool_i8_avxvnni`]) requantize each
+//! register tile's sums and reduce them into the running max and sum, where the plain kernels
+//! store int32 rows that the engine then requantizes to int8 rows and pools.
 //!
 //! On AVX2 and AVX-512BW the whole paper model runs 1.10–1.25× faster packed than row-major
 //! (README, "AVX2 and AVX-512BW packed kernels"). The AVX2 tile is four points: five, with
@@ -38,10 +47,17 @@ use core::arch::x86_64::*;
 
 // The row-major kernels' `vpmaddwd` + add stand in for `vpdpwssd` (the same wrapping sums).
 use super::{avx2_mac_i16, avx512bw_mac_i16, ld256_i8, vnni_correction};
-use crate::kernels::packed::{call_dims, Block, Lane, Packed, PackedI16, PackedI8, GROUP_ROWS};
+use crate::kernels::packed::{
+    call_dims, pool_dims, Block, Lane, Packed, PackedI16, PackedI8, GROUP_ROWS,
+};
+use crate::quant::Requant;
 
 /// Points per register tile.
 pub const TILE_POINTS: usize = 6;
+
+/// Tiles per pass over a row group: [`TILE_POINTS`] · 4 = 24 points, the engine's block
+/// (`infer::MAX_BLOCK`), whose inputs stay in L1 while each row group's weights pass.
+const SUPER: usize = 4;
 
 /// What the loop needs to know of a weight type beyond its [`Lane`] layout.
 trait Vnni: Lane {
@@ -62,8 +78,8 @@ impl Vnni for i16 {
     }
 }
 
-/// A tile's points: `(x, x_stride, first point, corrections, out, out_stride)`.
-type TileIo<'a, 'b, T> = (&'a [T], usize, usize, &'a [i32], &'b mut [i32], usize);
+/// A tile's points: `(x, x_stride, first point, corrections, epilogue)`.
+type TileIo<'a, 'b, T, E> = (&'a [T], usize, usize, &'a [i32], &'b mut E);
 
 /// One row group of one layer: what every tile of points multiplies by.
 struct Tile<'a> {
@@ -89,7 +105,10 @@ macro_rules! packed_loop {
         $m:ident, $features:literal, $(i8: $i8:ident, dpbusd: $dpbusd:expr,)? i16: $i16:ident;
         $v:ty, $lanes:expr, $regs:expr,
         zero: $zero:expr, set1: $set1:expr, load: $load:expr,
-        dpwssd: $dpwssd:expr, store: $store:expr $(,)?
+        dpwssd: $dpwssd:expr, store: $store:expr
+        $(, pool: $pool:ident, requant: $requant:expr, merge: $merge:expr,
+            load_i32: $load_i32:expr, load_f32: $load_f32:expr, max: $max:expr,
+            add: $add:expr, sub: $sub:expr)? $(,)?
     ) => {
         mod $m {
             use super::*;
@@ -116,7 +135,9 @@ macro_rules! packed_loop {
                 out: &mut [i32],
                 out_stride: usize,
             ) {
-                tiles::<i8, 4>(w, x, x_stride, points, bias, out, out_stride)
+                let (points, rows) = call_dims(w, x, x_stride, points, bias, out, out_stride);
+                let mut store = Store { out, stride: out_stride };
+                tiles::<i8, _, 4>(w, x, x_stride, points, rows, bias, &mut store)
             }
 
             impl Mac for i8 {
@@ -145,31 +166,33 @@ macro_rules! packed_loop {
                 out: &mut [i32],
                 out_stride: usize,
             ) {
-                tiles::<i16, 2>(w, x, x_stride, points, bias, out, out_stride)
+                let (points, rows) = call_dims(w, x, x_stride, points, bias, out, out_stride);
+                let mut store = Store { out, stride: out_stride };
+                tiles::<i16, _, 2>(w, x, x_stride, points, rows, bias, &mut store)
             }
 
-            /// Both kernels: tiles of points, each through every row group. `S` is
-            /// `T::STEP`.
+            /// Every kernel: tiles of the first `points` points, each through every row
+            /// group's first `rows` outputs (checked by the caller against `x`, `bias` and
+            /// what `epilogue` takes), the sums handed to `epilogue`. `S` is `T::STEP`.
             #[allow(clippy::too_many_arguments)]
             #[inline]
             #[target_feature(enable = $features)]
-            fn tiles<T: Mac, const S: usize>(
+            fn tiles<T: Mac, E: Epilogue, const S: usize>(
                 w: &Packed<'_, T>,
                 x: &[T],
                 x_stride: usize,
                 points: usize,
+                rows: usize,
                 bias: &[i32],
-                out: &mut [i32],
-                out_stride: usize,
+                epilogue: &mut E,
             ) {
                 const { assert!(S == T::STEP) };
-                let (points, rows) = call_dims(w, x, x_stride, points, bias, out, out_stride);
                 let k = w.k();
                 let mut first = 0;
                 while first < points {
-                    let m = (points - first).min(TILE_POINTS);
-                    let mut corr = [0i32; TILE_POINTS];
-                    for (c, p) in corr.iter_mut().zip(first..first + m) {
+                    let sm = (points - first).min(SUPER * TILE_POINTS);
+                    let mut corr = [0i32; SUPER * TILE_POINTS];
+                    for (c, p) in corr.iter_mut().zip(first..first + sm) {
                         *c = T::correction(&x[p * x_stride..][..k]);
                     }
                     for g in 0..rows.div_ceil(GROUP_ROWS) {
@@ -181,22 +204,27 @@ macro_rules! packed_loop {
                             rows: (rows - row0).min(GROUP_ROWS),
                             bias: &bias[row0..rows],
                         };
-                        for slice in 0..SLICES {
-                            if slice * REGS * LANES >= tile.rows {
-                                break;
+                        let mut t0 = 0;
+                        while t0 < sm {
+                            let m = (sm - t0).min(TILE_POINTS);
+                            for slice in 0..SLICES {
+                                if slice * REGS * LANES >= tile.rows {
+                                    break;
+                                }
+                                let io = (x, x_stride, first + t0, &corr[t0..t0 + m], &mut *epilogue);
+                                match m {
+                                    1 => run::<1, S, T, E>(&tile, slice, io),
+                                    2 => run::<2, S, T, E>(&tile, slice, io),
+                                    3 => run::<3, S, T, E>(&tile, slice, io),
+                                    4 => run::<4, S, T, E>(&tile, slice, io),
+                                    5 => run::<5, S, T, E>(&tile, slice, io),
+                                    _ => run::<6, S, T, E>(&tile, slice, io),
+                                }
                             }
-                            let io = (x, x_stride, first, &corr[..m], &mut *out, out_stride);
-                            match m {
-                                1 => run::<1, S, T>(&tile, slice, io),
-                                2 => run::<2, S, T>(&tile, slice, io),
-                                3 => run::<3, S, T>(&tile, slice, io),
-                                4 => run::<4, S, T>(&tile, slice, io),
-                                5 => run::<5, S, T>(&tile, slice, io),
-                                _ => run::<6, S, T>(&tile, slice, io),
-                            }
+                            t0 += m;
                         }
                     }
-                    first += m;
+                    first += sm;
                 }
             }
 
@@ -204,10 +232,10 @@ macro_rules! packed_loop {
             /// inputs per step; `corr` holds what to subtract from each point's sums.
             #[inline]
             #[target_feature(enable = $features)]
-            fn run<const NP: usize, const S: usize, T: Mac>(
+            fn run<const NP: usize, const S: usize, T: Mac, E: Epilogue>(
                 tile: &Tile<'_>,
                 slice: usize,
-                (x, x_stride, p, corr, out, out_stride): TileIo<'_, '_, T>,
+                (x, x_stride, p, corr, epilogue): TileIo<'_, '_, T, E>,
             ) {
                 let full = tile.k / S;
                 // Plain loops, not `array::from_fn` (an out-of-line call that hides the
@@ -237,17 +265,138 @@ macro_rules! packed_loop {
                         unsafe { T::mac(a, &wv, T::lane_bits(&row[full * S..])) };
                     }
                 }
-                for (i, (a, &c)) in acc.iter().zip(corr).enumerate() {
-                    let y = &mut out[(p + i) * out_stride + tile.row0..][..tile.rows];
-                    for (r, &a) in a.iter().enumerate() {
+                // SAFETY: `run` is compiled with the features `finish` needs.
+                unsafe { epilogue.finish(tile, reg0, p, &acc, corr) };
+            }
+
+            /// Where a register tile's sums go.
+            trait Epilogue {
+                /// The sums `acc` of the `NP` points from `p` for the registers `reg0..` of
+                /// `tile`'s slice (lane `i` of register `reg0 + r`: output
+                /// `tile.row0 + LANES·(reg0 + r) + i`, those below `tile.rows`), before the
+                /// bias and the corrections `corr` (one per point).
+                ///
+                /// # Safety
+                #[doc = concat!("The CPU must support `", $features, "`.")]
+                unsafe fn finish<const NP: usize>(
+                    &mut self,
+                    tile: &Tile<'_>,
+                    reg0: usize,
+                    p: usize,
+                    acc: &[[$v; REGS]; NP],
+                    corr: &[i32],
+                );
+            }
+
+            /// The int32 outputs to `out`, point rows `stride` apart.
+            struct Store<'a> {
+                out: &'a mut [i32],
+                stride: usize,
+            }
+
+            impl Epilogue for Store<'_> {
+                #[inline]
+                #[target_feature(enable = $features)]
+                unsafe fn finish<const NP: usize>(
+                    &mut self,
+                    tile: &Tile<'_>,
+                    reg0: usize,
+                    p: usize,
+                    acc: &[[$v; REGS]; NP],
+                    corr: &[i32],
+                ) {
+                    for (i, (a, &c)) in acc.iter().zip(corr).enumerate() {
+                        let y = &mut self.out[(p + i) * self.stride + tile.row0..][..tile.rows];
+                        for (r, &a) in a.iter().enumerate() {
+                            let lo = (reg0 + r) * LANES;
+                            if lo >= tile.rows {
+                                break;
+                            }
+                            $store(&mut y[lo..], a, &tile.bias[lo..tile.rows], c);
+                        }
+                    }
+                }
+            }
+
+            $(
+            #[doc = concat!("[`crate::kernels::packed::matmat_packed_pool_i8`], bit-exact, with `", $features, "`: ")]
+            /// each register tile's sums requantized and pooled while they are in registers,
+            /// never written to memory as int32 rows, nor as int8 ones.
+            ///
+            /// # Safety
+            #[doc = concat!("The CPU must support `", $features, "`.")]
+            #[allow(clippy::too_many_arguments)]
+            #[target_feature(enable = $features)]
+            pub unsafe fn $pool(
+                w: &PackedI8<'_>,
+                x: &[i8],
+                x_stride: usize,
+                points: usize,
+                bias: &[i32],
+                requant: Requant<'_>,
+                max: &mut [i8],
+                sum: &mut [i32],
+            ) {
+                let pooled = requant.scales.len().min(max.len()).min(sum.len());
+                let (points, rows) = pool_dims(w, x.len(), x_stride, points, bias.len(), pooled);
+                let mut pool = Pool {
+                    scales: requant.scales,
+                    alpha: requant.leaky.unwrap_or(1.0),
+                    max,
+                    sum,
+                };
+                tiles::<i8, _, 4>(w, x, x_stride, points, rows, bias, &mut pool)
+            }
+
+            /// The outputs requantized to wide values ([`requantize_wide`], here on whole
+            /// registers), reduced over the tile's points into a max and a sum per output in
+            /// registers, then merged into the running `max` and `sum`. Max and sum of the wide
+            /// values (all in `-128..=127`) are those of the int8 values.
+            struct Pool<'a> {
+                scales: &'a [f32],
+                alpha: f32,
+                max: &'a mut [i8],
+                sum: &'a mut [i32],
+            }
+
+            impl Epilogue for Pool<'_> {
+                // Out of line: inlined, its constants were hoisted out of the tile loops and
+                // held in registers through the multiply loop, which then kept five of its 24
+                // accumulators in memory (a load and a store per `vpdpbusd`). The call stores
+                // the accumulators once per slice instead.
+                #[inline(never)]
+                #[target_feature(enable = $features)]
+                unsafe fn finish<const NP: usize>(
+                    &mut self,
+                    tile: &Tile<'_>,
+                    reg0: usize,
+                    _p: usize,
+                    acc: &[[$v; REGS]; NP],
+                    corr: &[i32],
+                ) {
+                    for r in 0..REGS {
                         let lo = (reg0 + r) * LANES;
                         if lo >= tile.rows {
                             break;
                         }
-                        $store(&mut y[lo..], a, &tile.bias[lo..tile.rows], c);
+                        let (o, n) = (tile.row0 + lo, tile.rows - lo);
+                        // Lanes past `n` (bias and scale 0) requantize to 0 and are not merged.
+                        let bias = $load_i32(&tile.bias[lo..], n);
+                        let scale = $load_f32(self.scales.get(o..).unwrap_or_default(), n);
+                        let (mut mx, mut sm) = ($set1(-128), $zero());
+                        for (a, &c) in acc.iter().zip(corr) {
+                            let v = $sub($add(a[r], bias), $set1(c));
+                            let q = $requant(v, scale, self.alpha);
+                            mx = $max(mx, q);
+                            sm = $add(sm, q);
+                        }
+                        let max = self.max.get_mut(o..).unwrap_or_default();
+                        let sum = self.sum.get_mut(o..).unwrap_or_default();
+                        $merge(max, sum, mx, sm, n);
                     }
                 }
             }
+            )?
 
             /// One point's step of inputs (the lane's four bytes), broadcast, times one
             /// slice of a block: `vpdpbusd` (int8) or `vpdpwssd` (int16) into each of the
@@ -272,7 +421,7 @@ macro_rules! packed_loop {
             }
         }
 
-        pub use $m::{$i16 $(, $i8)?};
+        pub use $m::{$i16 $(, $i8)? $(, $pool)?};
     };
 }
 
@@ -286,6 +435,14 @@ packed_loop! {
     load: load512,
     dpwssd: _mm512_dpwssd_epi32,
     store: store512,
+    pool: matmat_packed_pool_i8_avx512vnni,
+    requant: requant512,
+    merge: merge512,
+    load_i32: low512_i32,
+    load_f32: low512_f32,
+    max: _mm512_max_epi32,
+    add: _mm512_add_epi32,
+    sub: _mm512_sub_epi32,
 }
 
 packed_loop! {
@@ -298,6 +455,14 @@ packed_loop! {
     load: load256,
     dpwssd: _mm256_dpwssd_avx_epi32,
     store: store256,
+    pool: matmat_packed_pool_i8_avxvnni,
+    requant: requant256,
+    merge: merge256,
+    load_i32: low256_i32,
+    load_f32: low256_f32,
+    max: _mm256_max_epi32,
+    add: _mm256_add_epi32,
+    sub: _mm256_sub_epi32,
 }
 
 packed_loop! {
@@ -636,5 +801,149 @@ fn store256(y: &mut [i32], a: __m256i, bias: &[i32], c: i32) {
     unsafe { _mm256_storeu_si256(lanes.as_mut_ptr().cast(), a) };
     for ((y, &l), &b) in y.iter_mut().zip(&lanes).zip(bias).take(n) {
         *y = l.wrapping_add(b).wrapping_sub(c);
+    }
+}
+
+// The pooled epilogue's steps ([`crate::quant::requantize_wide`] on whole registers, and the
+// merge into the running pool), for 16 and 8 lanes.
+//
+// `requantize_wide` clamps to `[-129, 128]`, rounds half to even and clamps the integer to
+// `-128..=127`; clamping to `[-128, 127]` before rounding gives the same integer for every
+// input (rounding is monotone and the bounds are integers; a NaN gives the lower bound either
+// way), one step fewer.
+
+/// `1.5 · 2^23`: added to a float in `(-2^22, 2^22)`, it leaves the value rounded half to even
+/// in the low mantissa bits ([`crate::quant::round_to_i32`]).
+const MAGIC: f32 = 12_582_912.0;
+
+/// [`crate::quant::requantize_wide`] of each lane of `acc` with its lane of `scale`.
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn requant512(acc: __m512i, scale: __m512, alpha: f32) -> __m512i {
+    let v = _mm512_mul_ps(_mm512_cvtepi32_ps(acc), scale);
+    let neg = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, _mm512_setzero_ps());
+    let v = _mm512_mask_mul_ps(v, neg, v, _mm512_set1_ps(alpha));
+    let v = _mm512_min_ps(
+        _mm512_max_ps(v, _mm512_set1_ps(-128.0)),
+        _mm512_set1_ps(127.0),
+    );
+    let r = _mm512_castps_si512(_mm512_add_ps(v, _mm512_set1_ps(MAGIC)));
+    _mm512_sub_epi32(r, _mm512_set1_epi32(MAGIC.to_bits() as i32))
+}
+
+/// [`requant512`] for 8 lanes.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn requant256(acc: __m256i, scale: __m256, alpha: f32) -> __m256i {
+    let v = _mm256_mul_ps(_mm256_cvtepi32_ps(acc), scale);
+    let neg = _mm256_cmp_ps::<_CMP_LT_OQ>(v, _mm256_setzero_ps());
+    let v = _mm256_blendv_ps(v, _mm256_mul_ps(v, _mm256_set1_ps(alpha)), neg);
+    let v = _mm256_min_ps(
+        _mm256_max_ps(v, _mm256_set1_ps(-128.0)),
+        _mm256_set1_ps(127.0),
+    );
+    let r = _mm256_castps_si256(_mm256_add_ps(v, _mm256_set1_ps(MAGIC)));
+    _mm256_sub_epi32(r, _mm256_set1_epi32(MAGIC.to_bits() as i32))
+}
+
+/// The low `min(t.len(), n, 16)` lanes of `t`, zeros above.
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn low512_i32(t: &[i32], n: usize) -> __m512i {
+    let mask = super::low_mask(t.len().min(n)) as u16;
+    // SAFETY: the mask selects lanes inside `t`; the others are not read.
+    unsafe { _mm512_maskz_loadu_epi32(mask, t.as_ptr()) }
+}
+
+/// [`low512_i32`] for f32.
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn low512_f32(t: &[f32], n: usize) -> __m512 {
+    let mask = super::low_mask(t.len().min(n)) as u16;
+    // SAFETY: the mask selects lanes inside `t`; the others are not read.
+    unsafe { _mm512_maskz_loadu_ps(mask, t.as_ptr()) }
+}
+
+/// Merges the low `min(n, max.len(), sum.len(), 16)` lanes of a max and a sum (lanes in
+/// `-128..=127` for the max) into the running `max` and `sum`; nothing else is touched.
+#[inline]
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
+fn merge512(max: &mut [i8], sum: &mut [i32], mx: __m512i, sm: __m512i, n: usize) {
+    let mask = super::low_mask(n.min(max.len()).min(sum.len())) as u16;
+    // SAFETY: the mask selects lanes inside `max` and `sum`; the others are neither read nor
+    // written. The max's lanes fit in i8, so the truncating narrowing is exact.
+    unsafe {
+        let m = _mm512_cvtepi8_epi32(_mm_maskz_loadu_epi8(mask, max.as_ptr()));
+        let m = _mm512_cvtepi32_epi8(_mm512_max_epi32(m, mx));
+        _mm_mask_storeu_epi8(max.as_mut_ptr(), mask, m);
+        let s = _mm512_add_epi32(_mm512_maskz_loadu_epi32(mask, sum.as_ptr()), sm);
+        _mm512_mask_storeu_epi32(sum.as_mut_ptr(), mask, s);
+    }
+}
+
+/// The low `min(t.len(), n, 8)` lanes of `t`, zeros above.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn low256_i32(t: &[i32], n: usize) -> __m256i {
+    if let (true, Some(t)) = (n >= 8, t.first_chunk::<8>()) {
+        // SAFETY: `t` is 8 i32; `loadu` has no alignment requirement.
+        return unsafe { _mm256_loadu_si256(t.as_ptr().cast()) };
+    }
+    let mut lanes = [0i32; 8];
+    let n = t.len().min(n).min(8);
+    lanes[..n].copy_from_slice(&t[..n]);
+    // SAFETY: `lanes` is 8 i32; `loadu` has no alignment requirement.
+    unsafe { _mm256_loadu_si256(lanes.as_ptr().cast()) }
+}
+
+/// [`low256_i32`] for f32.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn low256_f32(t: &[f32], n: usize) -> __m256 {
+    if let (true, Some(t)) = (n >= 8, t.first_chunk::<8>()) {
+        // SAFETY: `t` is 8 f32; `loadu` has no alignment requirement.
+        return unsafe { _mm256_loadu_ps(t.as_ptr()) };
+    }
+    let mut lanes = [0f32; 8];
+    let n = t.len().min(n).min(8);
+    lanes[..n].copy_from_slice(&t[..n]);
+    // SAFETY: `lanes` is 8 f32; `loadu` has no alignment requirement.
+    unsafe { _mm256_loadu_ps(lanes.as_ptr()) }
+}
+
+/// [`merge512`] for 8 lanes.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn merge256(max: &mut [i8], sum: &mut [i32], mx: __m256i, sm: __m256i, n: usize) {
+    if let (true, Some(max), Some(sum)) = (
+        n >= 8,
+        max.first_chunk_mut::<8>(),
+        sum.first_chunk_mut::<8>(),
+    ) {
+        // SAFETY: `max` is 8 bytes and `sum` 8 i32; unaligned loads and stores. The max's
+        // lanes fit in i8, so the saturating packs are exact; `packs` works per 128-bit half,
+        // so the halves' 4 bytes are joined with a lane permute.
+        unsafe {
+            let m = _mm256_cvtepi8_epi32(_mm_loadl_epi64(max.as_ptr().cast()));
+            let m = _mm256_max_epi32(m, mx);
+            let w = _mm256_packs_epi32(m, m); // i16: [a0..a3 a0..a3 | a4..a7 a4..a7]
+            let w = _mm256_permute4x64_epi64::<0b1000>(w); // [a0..a3 a4..a7 | ..]
+            let b = _mm_packs_epi16(_mm256_castsi256_si128(w), _mm256_castsi256_si128(w));
+            _mm_storel_epi64(max.as_mut_ptr().cast(), b);
+            let s = _mm256_add_epi32(_mm256_loadu_si256(sum.as_ptr().cast()), sm);
+            _mm256_storeu_si256(sum.as_mut_ptr().cast(), s);
+        }
+        return;
+    }
+    let (mut m, mut t) = ([0i32; 8], [0i32; 8]);
+    // SAFETY: `m` and `t` are 8 i32 each; `storeu` has no alignment requirement.
+    unsafe {
+        _mm256_storeu_si256(m.as_mut_ptr().cast(), mx);
+        _mm256_storeu_si256(t.as_mut_ptr().cast(), sm);
+    }
+    for (((max, sum), &m), &t) in max.iter_mut().zip(sum).zip(&m).zip(&t).take(n) {
+        // `m` is in -128..=127: the cast is exact.
+        *max = (*max).max(m as i8);
+        *sum = sum.wrapping_add(t);
     }
 }
