@@ -106,8 +106,9 @@ macro_rules! packed_loop {
         $v:ty, $lanes:expr, $regs:expr,
         zero: $zero:expr, set1: $set1:expr, load: $load:expr,
         dpwssd: $dpwssd:expr, store: $store:expr
-        $(, pool: $pool:ident, requant: $requant:expr, merge: $merge:expr,
-            load_i32: $load_i32:expr, load_f32: $load_f32:expr, max: $max:expr,
+        $(, pool: $pool:ident, scaled: $scaled:expr, round: $round:expr, merge: $merge:expr,
+            load_i32: $load_i32:expr, load_f32: $load_f32:expr, set1_f32: $set1_f32:expr,
+            max_f32: $max_f32:expr,
             add: $add:expr, sub: $sub:expr)? $(,)?
     ) => {
         mod $m {
@@ -383,16 +384,18 @@ macro_rules! packed_loop {
                         // Lanes past `n` (bias and scale 0) requantize to 0 and are not merged.
                         let bias = $load_i32(&tile.bias[lo..], n);
                         let scale = $load_f32(self.scales.get(o..).unwrap_or_default(), n);
-                        let (mut mx, mut sm) = ($set1(-128), $zero());
+                        // The max is taken before rounding, once per register: rounding is
+                        // monotone, so the rounded max is the max of the rounded values.
+                        let (mut mx, mut sm) = ($set1_f32(-128.0), $zero());
                         for (a, &c) in acc.iter().zip(corr) {
                             let v = $sub($add(a[r], bias), $set1(c));
-                            let q = $requant(v, scale, self.alpha);
-                            mx = $max(mx, q);
-                            sm = $add(sm, q);
+                            let f = $scaled(v, scale, self.alpha);
+                            mx = $max_f32(mx, f);
+                            sm = $add(sm, $round(f));
                         }
                         let max = self.max.get_mut(o..).unwrap_or_default();
                         let sum = self.sum.get_mut(o..).unwrap_or_default();
-                        $merge(max, sum, mx, sm, n);
+                        $merge(max, sum, $round(mx), sm, n);
                     }
                 }
             }
@@ -436,11 +439,13 @@ packed_loop! {
     dpwssd: _mm512_dpwssd_epi32,
     store: store512,
     pool: matmat_packed_pool_i8_avx512vnni,
-    requant: requant512,
+    scaled: scaled512,
+    round: round512,
     merge: merge512,
     load_i32: low512_i32,
     load_f32: low512_f32,
-    max: _mm512_max_epi32,
+    set1_f32: _mm512_set1_ps,
+    max_f32: _mm512_max_ps,
     add: _mm512_add_epi32,
     sub: _mm512_sub_epi32,
 }
@@ -456,11 +461,13 @@ packed_loop! {
     dpwssd: _mm256_dpwssd_avx_epi32,
     store: store256,
     pool: matmat_packed_pool_i8_avxvnni,
-    requant: requant256,
+    scaled: scaled256,
+    round: round256,
     merge: merge256,
     load_i32: low256_i32,
     load_f32: low256_f32,
-    max: _mm256_max_epi32,
+    set1_f32: _mm256_set1_ps,
+    max_f32: _mm256_max_ps,
     add: _mm256_add_epi32,
     sub: _mm256_sub_epi32,
 }
@@ -808,42 +815,51 @@ fn store256(y: &mut [i32], a: __m256i, bias: &[i32], c: i32) {
 // merge into the running pool), for 16 and 8 lanes.
 //
 // `requantize_wide` clamps to `[-129, 128]`, rounds half to even and clamps the integer to
-// `-128..=127`; clamping to `[-128, 127]` before rounding gives the same integer for every
+// `-128..=127`. Clamping to `[-128, 127]` before rounding gives the same integer for every
 // input (rounding is monotone and the bounds are integers; a NaN gives the lower bound either
-// way), one step fewer.
+// way), and in that range the conversion instruction's rounding (to nearest, ties to even:
+// embedded in the AVX-512 form, the default `MXCSR` mode Rust assumes in the AVX2 one) is the
+// magic-number rounding of `quant::round_to_i32`.
 
-/// `1.5 · 2^23`: added to a float in `(-2^22, 2^22)`, it leaves the value rounded half to even
-/// in the low mantissa bits ([`crate::quant::round_to_i32`]).
-const MAGIC: f32 = 12_582_912.0;
-
-/// [`crate::quant::requantize_wide`] of each lane of `acc` with its lane of `scale`.
+/// [`crate::quant::requantize_wide`] of each lane of `acc` with its lane of `scale`, before
+/// rounding: `acc · scale`, times `alpha` where negative, clamped to `[-128, 127]`.
 #[inline]
 #[target_feature(enable = "avx512f")]
-fn requant512(acc: __m512i, scale: __m512, alpha: f32) -> __m512i {
+fn scaled512(acc: __m512i, scale: __m512, alpha: f32) -> __m512 {
     let v = _mm512_mul_ps(_mm512_cvtepi32_ps(acc), scale);
     let neg = _mm512_cmp_ps_mask::<_CMP_LT_OQ>(v, _mm512_setzero_ps());
     let v = _mm512_mask_mul_ps(v, neg, v, _mm512_set1_ps(alpha));
-    let v = _mm512_min_ps(
+    _mm512_min_ps(
         _mm512_max_ps(v, _mm512_set1_ps(-128.0)),
         _mm512_set1_ps(127.0),
-    );
-    let r = _mm512_castps_si512(_mm512_add_ps(v, _mm512_set1_ps(MAGIC)));
-    _mm512_sub_epi32(r, _mm512_set1_epi32(MAGIC.to_bits() as i32))
+    )
 }
 
-/// [`requant512`] for 8 lanes.
+/// [`scaled512`]'s values rounded half to even.
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn round512(v: __m512) -> __m512i {
+    _mm512_cvt_roundps_epi32::<{ _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC }>(v)
+}
+
+/// [`scaled512`] for 8 lanes.
 #[inline]
 #[target_feature(enable = "avx2")]
-fn requant256(acc: __m256i, scale: __m256, alpha: f32) -> __m256i {
+fn scaled256(acc: __m256i, scale: __m256, alpha: f32) -> __m256 {
     let v = _mm256_mul_ps(_mm256_cvtepi32_ps(acc), scale);
     let neg = _mm256_cmp_ps::<_CMP_LT_OQ>(v, _mm256_setzero_ps());
     let v = _mm256_blendv_ps(v, _mm256_mul_ps(v, _mm256_set1_ps(alpha)), neg);
-    let v = _mm256_min_ps(
+    _mm256_min_ps(
         _mm256_max_ps(v, _mm256_set1_ps(-128.0)),
         _mm256_set1_ps(127.0),
-    );
-    let r = _mm256_castps_si256(_mm256_add_ps(v, _mm256_set1_ps(MAGIC)));
-    _mm256_sub_epi32(r, _mm256_set1_epi32(MAGIC.to_bits() as i32))
+    )
+}
+
+/// [`scaled256`]'s values rounded half to even (the default rounding mode).
+#[inline]
+#[target_feature(enable = "avx2")]
+fn round256(v: __m256) -> __m256i {
+    _mm256_cvtps_epi32(v)
 }
 
 /// The low `min(t.len(), n, 16)` lanes of `t`, zeros above.
