@@ -125,5 +125,51 @@ fn packed_layers(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, matvec_i8, matvec_i16, matmat_i8, packed_layers);
+fn pooled_conv5(c: &mut Criterion) {
+    // The paper model's last point layer (conv5) as the engine runs it, one 24-point block
+    // (`Plan::block`): the packed kernel's int32 rows requantized and pooled in two more passes,
+    // against the table's pooled kernel (`Kernels::packed_pool_i8`), where it has one.
+    use evpose_core::quant::Requant;
+    let (k, n, p) = (512, 1024, 24);
+    let w = values(k * n, 7, |v| v as i8);
+    let bias = values(n, 9, |v| (v as i32) >> 12);
+    let x = values(p * k, 8, |v| (v as i8) / 2);
+    let scales = values(n, 3, |v| 1e-4 + (v % 100) as f32 * 1e-6);
+    let requant = Requant {
+        scales: &scales,
+        leaky: Some(0.1),
+    };
+    let mut buf = vec![0u8; packed::packed_len(n, k).expect("fits")];
+    let (pw, _) = PackedI8::pack(&w, n, k, &mut buf).expect("pack");
+    let (mut acc, mut y) = (vec![0; p * n], vec![0i8; p * n]);
+    let (mut max, mut sum) = (vec![i8::MIN; n], vec![0i32; n]);
+    let mut g = c.benchmark_group(format!("pooled_i8/conv5 K={k} out={n} P={p}"));
+    g.throughput(Throughput::Elements((k * n * p) as u64));
+    for kern in kernels_here().into_iter().filter(Kernels::has_packed) {
+        g.bench_function(format!("store+requant+pool/{}", kern.name()), |b| {
+            b.iter(|| {
+                kern.matmat_packed_i8(&pw, black_box(&x), k, p, &bias, &mut acc, n);
+                for (a, y) in acc.chunks_exact(n).zip(y.chunks_exact_mut(n)) {
+                    kern.requantize(a, requant, y);
+                    kern.pool_i8(&mut max, &mut sum, y);
+                }
+            })
+        });
+        if let Some(pooled) = kern.packed_pool_i8(&pw) {
+            g.bench_function(format!("pooled/{}", kern.name()), |b| {
+                b.iter(|| pooled(&pw, black_box(&x), k, p, &bias, requant, &mut max, &mut sum))
+            });
+        }
+    }
+    g.finish();
+}
+
+criterion_group!(
+    benches,
+    matvec_i8,
+    matvec_i16,
+    matmat_i8,
+    packed_layers,
+    pooled_conv5
+);
 criterion_main!(benches);
