@@ -105,7 +105,8 @@ fn matmat_i8(c: &mut Criterion) {
 
 fn packed_layers(c: &mut Criterion) {
     // The paper model's int8 point layers as the engine runs them on a CPU with native packed
-    // kernels: blocks of 24 points (`Plan::block`), every packed kernel family this CPU has.
+    // kernels, in 24-point calls (one pass of the VNNI kernels' four register tiles; the
+    // engine's blocks, `Plan::block`, hold up to four), every packed kernel family this CPU has.
     let p = 24;
     for (k, n) in [(64, 64), (64, 128), (128, 256), (512, 1024)] {
         let w = values(k * n, 7, |v| v as i8);
@@ -126,8 +127,9 @@ fn packed_layers(c: &mut Criterion) {
 }
 
 fn pooled_conv5(c: &mut Criterion) {
-    // The paper model's last point layer (conv5) as the engine runs it, one 24-point block
-    // (`Plan::block`): the packed kernel's int32 rows requantized and pooled in two more passes,
+    // The paper model's last point layer (conv5) as the engine runs it, in a 24-point call (a
+    // quarter of the largest `Plan::block`): the packed kernel's int32 rows requantized and
+    // pooled in two more passes,
     // against the table's pooled kernel (`Kernels::packed_pool_i8`), where it has one.
     use evpose_core::quant::Requant;
     let (k, n, p) = (512, 1024, 24);

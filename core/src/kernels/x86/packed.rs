@@ -20,8 +20,8 @@
 //! horizontal sums: lane `i` of accumulator `q` is output `LANES·q + i` of the slice, stored as
 //! is. Each point's step of inputs (four bytes) is broadcast from memory.
 //!
-//! Row groups are the outer loop over a pass of up to [`SUPER`] tiles (24 points, the engine's
-//! block): each group's weights (32 KiB for the paper's conv5, whose 512 KiB live in L2) are
+//! Row groups are the outer loop over a pass of up to [`SUPER`] tiles (24 points; the engine's
+//! blocks hold up to four passes): each group's weights (32 KiB for the paper's conv5, whose 512 KiB live in L2) are
 //! read from L2 once per pass and from L1 by the pass's other tiles, while the pass's inputs
 //! (12 KiB for conv5) stay in L1, and `128·Σx` (the correction for the int8 weights' `+128`
 //! offset) is computed once per point. With one tile per pass (the weights streamed from L2
@@ -55,8 +55,9 @@ use crate::quant::Requant;
 /// Points per register tile.
 pub const TILE_POINTS: usize = 6;
 
-/// Tiles per pass over a row group: [`TILE_POINTS`] · 4 = 24 points, the engine's block
-/// (`infer::MAX_BLOCK`), whose inputs stay in L1 while each row group's weights pass.
+/// Tiles per pass over a row group: [`TILE_POINTS`] · 4 = 24 points (a quarter of the engine's
+/// largest block, `infer::MAX_BLOCK`), whose inputs stay in L1 while each row group's weights
+/// pass.
 const SUPER: usize = 4;
 
 /// What the loop needs to know of a weight type beyond its [`Lane`] layout.
