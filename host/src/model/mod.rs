@@ -88,8 +88,10 @@ impl<'b> CoreRunner<'b> {
 
     fn build(blob: &'b AlignedBlob, k: &Kernels, pack: bool) -> Result<Self> {
         let model = Model::parse(blob.bytes()).map_err(|e| anyhow!("{e}"))?;
-        // Scratch for the model's engine only, for its largest block of points.
-        let words = scratch_words_for_block(&model, evpose_core::infer::MAX_BLOCK);
+        // Scratch for the model's engine only, for its largest block of points, and the words
+        // that let its activation rows start at a cache line.
+        let words = scratch_words_for_block(&model, evpose_core::infer::MAX_BLOCK)
+            + evpose_core::infer::ALIGN_WORDS;
         let packed = match model.dtype() {
             DType::I8 if pack && k.has_packed() => blob.packed(&model)?,
             _ => None,

@@ -91,7 +91,11 @@ impl<E: Engine> Buffers<E> {
         Self {
             indices: vec![0; rows],
             rows: vec![[0.0; 5]; rows],
-            scratch: vec![E::Value::default(); plan.scratch_words()],
+            // With the words that let the activation rows start at a cache line.
+            scratch: vec![
+                E::Value::default();
+                plan.scratch_words() + evpose_core::infer::ALIGN_WORDS
+            ],
             x: vec![E::Value::default(); plan.out_x_len()],
             y: vec![E::Value::default(); plan.out_y_len()],
             joints: vec![Joint2d::default(); plan.model().joints()],
