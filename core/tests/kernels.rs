@@ -1095,10 +1095,10 @@ proptest! {
     #[test]
     fn i8_packed_kernels_match_reference_whole_tiles(
         (w, r, k, x, xs, p, b, n, s) in
-            packed_shape(any_i8(), (3usize..10).prop_map(|c| 64 * c), 0..=70)
+            packed_shape(any_i8(), (1usize..10).prop_map(|c| 64 * c), 0..=70)
     ) {
-        // `K` a multiple of 64 from 192 (AVX-512 VNNI on an AMX CPU) to 576 (on tiles from
-        // 256: `kernels::x86::AMX_MIN_K`), and blocks of points past one (32) and two tile
+        // `K` a multiple of 64 from 64 (AVX-512 VNNI on an AMX CPU) to 576 (on tiles from
+        // 128: `kernels::x86::AMX_MIN_K`), and blocks of points past one (32) and two tile
         // pairs, every remainder of 16.
         check_packed(&w, r, k, &x, xs, p, &b, n, s);
     }
@@ -1110,7 +1110,7 @@ proptest! {
         extra in 0usize..3,
         seed in any::<u64>(),
     ) {
-        // The tiles' shapes (K a multiple of 64 from 256, blocks of points past one and two
+        // The tiles' shapes (K a multiple of 64 from 128, blocks of points past one and two
         // tile pairs) and the others (the VNNI tables' register tiles and their tails).
         check_pooled(&w, r, k, &x, xs, p, &b, r + extra, seed);
     }

@@ -185,7 +185,7 @@ pub enum Isa {
     /// x86_64 AVX-512 VNNI: `vpdpbusd`/`vpdpwssd`, 512-bit.
     X86Avx512Vnni,
     /// x86_64 Intel AMX-INT8 (`tdpbsud` on tiles) for the packed int8 layers whose `K` is a
-    /// multiple of 64 and at least `x86::AMX_MIN_K` (256), and AVX-512 VNNI for everything
+    /// multiple of 64 and at least `x86::AMX_MIN_K` (128), and AVX-512 VNNI for everything
     /// else; needs the OS's permission for the tile state, which [`Kernels::detect`] asks for on
     /// Linux.
     X86Amx,

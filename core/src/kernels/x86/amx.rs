@@ -38,9 +38,10 @@
 //! Xeon with AMX-INT8: 2.54–2.93 ms before, 2.17–2.20 ms with this epilogue, fastest runs).
 //!
 //! The kernel takes layers whose `K` is a multiple of 64 (a tile's row) and at least
-//! [`MIN_K`] (256): the others (the small MCU model's, the paper model's first four) run the
-//! AVX-512 VNNI kernel, as does the int16 first layer (AMX has no int16 product). In the
-//! paper model the tiles run conv5 (512 inputs, 1,024 outputs), 92 % of its MACs.
+//! [`MIN_K`] (128): the others (most of the small MCU model's, the paper model's conv2 and
+//! conv3) run the AVX-512 VNNI kernel, as does the int16 first layer (AMX has no int16
+//! product). In the paper model the tiles run conv4 (128 inputs, 256 outputs) and conv5 (512
+//! inputs, 1,024 outputs), 98 % of its MACs.
 //!
 //! # Permission
 //!
@@ -66,11 +67,13 @@ use crate::quant::{requantize_wide, Requant};
 /// Inputs per tile row: 64 bytes.
 pub const TILE_K: usize = 64;
 
-/// The smallest `K` the tiles take: with fewer than four chunks of 64 inputs, a tile's
-/// set-up, stores and bias pass cost more than its products save, and the AVX-512 VNNI kernel
-/// was as fast or faster (`K` = 64: 91–181 against 141 GMAC/s; the MCU model, whose only
-/// multiple of 64 is a 128-input layer: 53–84 against 95 GMAC/s with it on tiles).
-pub const MIN_K: usize = 256;
+/// The smallest `K` the tiles take. With the engine's activation rows on cache lines
+/// (`infer::ALIGN_WORDS`), the paper model ran about 3 % faster with its 128-input conv4 on
+/// tiles (1.97–2.21 against 2.03–2.19 ms in eight alternating rounds on an Emerald Rapids VM;
+/// 64 gave the same as 128), and the bundled pipeline (the MCU model, whose 128-input layer
+/// then runs on tiles) no slower (21–30 against 20–23 M events/s in five rounds). Before the
+/// rows were aligned, 256: `K` = 64 ran at 91–181 GMAC/s on tiles against 141 on AVX-512 VNNI.
+pub const MIN_K: usize = 128;
 
 /// Points (tile rows) per tile.
 const TILE_ROWS: usize = 16;
