@@ -489,6 +489,29 @@ fn ld512m_i16(t: &[i16]) -> __m512i {
     unsafe { _mm512_maskz_loadu_epi16(low_mask(t.len()) as u32, t.as_ptr()) }
 }
 
+/// The first `min(t.len(), 16)` i32 of `t`, zeros above.
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn ld512m_i32(t: &[i32]) -> __m512i {
+    // SAFETY: the mask selects lanes `0..min(t.len(), 16)`, all inside `t`; others are not read.
+    unsafe { _mm512_maskz_loadu_epi32(low_mask(t.len()) as u16, t.as_ptr()) }
+}
+
+/// The first `min(t.len(), 8)` i32 of `t`, zeros above (AVX2's `vpmaskmovd`).
+#[inline]
+#[target_feature(enable = "avx2")]
+fn ld256m_i32(t: &[i32]) -> __m256i {
+    let n = t.len().min(8) as i32;
+    // Lane i is loaded where i < n: its mask's sign bit is set.
+    let mask = _mm256_cmpgt_epi32(
+        _mm256_set1_epi32(n),
+        _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+    );
+    // SAFETY: the mask selects lanes `0..min(t.len(), 8)`, all inside `t`; masked-out lanes are
+    // neither read nor able to fault.
+    unsafe { _mm256_maskload_epi32(t.as_ptr(), mask) }
+}
+
 /// `bias + s − corr` (lane-wise, wrapping) into `out`.
 #[inline]
 #[target_feature(enable = "avx2")]

@@ -46,7 +46,7 @@
 use core::arch::x86_64::*;
 
 // The row-major kernels' `vpmaddwd` + add stand in for `vpdpwssd` (the same wrapping sums).
-use super::{avx2_mac_i16, avx512bw_mac_i16, ld256_i8, vnni_correction};
+use super::{avx2_mac_i16, avx512bw_mac_i16, ld256_i8, ld256m_i32, ld512m_i32, vnni_correction};
 use crate::kernels::packed::{
     call_dims, pool_dims, Block, Lane, Packed, PackedI16, PackedI8, GROUP_ROWS,
 };
@@ -108,7 +108,7 @@ macro_rules! packed_loop {
         zero: $zero:expr, set1: $set1:expr, load: $load:expr,
         dpwssd: $dpwssd:expr, store: $store:expr
         $(, pool: $pool:ident, scaled: $scaled:expr, round: $round:expr, merge: $merge:expr,
-            load_i32: $load_i32:expr, load_f32: $load_f32:expr, set1_f32: $set1_f32:expr,
+            load_i32: $load_i32:expr, cast_f32: $cast_f32:expr, set1_f32: $set1_f32:expr,
             max_f32: $max_f32:expr,
             add: $add:expr, sub: $sub:expr)? $(,)?
     ) => {
@@ -383,8 +383,9 @@ macro_rules! packed_loop {
                         }
                         let (o, n) = (tile.row0 + lo, tile.rows - lo);
                         // Lanes past `n` (bias and scale 0) requantize to 0 and are not merged.
-                        let bias = $load_i32(&tile.bias[lo..], n);
-                        let scale = $load_f32(self.scales.get(o..).unwrap_or_default(), n);
+                        let bias = $load_i32(&tile.bias[lo..tile.rows]);
+                        let scales = self.scales.get(o..o + n).unwrap_or_default();
+                        let scale = $cast_f32($load_i32(bytemuck::cast_slice(scales)));
                         // The max is taken before rounding, once per register: rounding is
                         // monotone, so the rounded max is the max of the rounded values.
                         let (mut mx, mut sm) = ($set1_f32(-128.0), $zero());
@@ -443,8 +444,8 @@ packed_loop! {
     scaled: scaled512,
     round: round512,
     merge: merge512,
-    load_i32: low512_i32,
-    load_f32: low512_f32,
+    load_i32: ld512m_i32,
+    cast_f32: _mm512_castsi512_ps,
     set1_f32: _mm512_set1_ps,
     max_f32: _mm512_max_ps,
     add: _mm512_add_epi32,
@@ -465,8 +466,8 @@ packed_loop! {
     scaled: scaled256,
     round: round256,
     merge: merge256,
-    load_i32: low256_i32,
-    load_f32: low256_f32,
+    load_i32: ld256m_i32,
+    cast_f32: _mm256_castsi256_ps,
     set1_f32: _mm256_set1_ps,
     max_f32: _mm256_max_ps,
     add: _mm256_add_epi32,
@@ -863,24 +864,6 @@ fn round256(v: __m256) -> __m256i {
     _mm256_cvtps_epi32(v)
 }
 
-/// The low `min(t.len(), n, 16)` lanes of `t`, zeros above.
-#[inline]
-#[target_feature(enable = "avx512f")]
-fn low512_i32(t: &[i32], n: usize) -> __m512i {
-    let mask = super::low_mask(t.len().min(n)) as u16;
-    // SAFETY: the mask selects lanes inside `t`; the others are not read.
-    unsafe { _mm512_maskz_loadu_epi32(mask, t.as_ptr()) }
-}
-
-/// [`low512_i32`] for f32.
-#[inline]
-#[target_feature(enable = "avx512f")]
-fn low512_f32(t: &[f32], n: usize) -> __m512 {
-    let mask = super::low_mask(t.len().min(n)) as u16;
-    // SAFETY: the mask selects lanes inside `t`; the others are not read.
-    unsafe { _mm512_maskz_loadu_ps(mask, t.as_ptr()) }
-}
-
 /// Merges the low `min(n, max.len(), sum.len(), 16)` lanes of a max and a sum (lanes in
 /// `-128..=127` for the max) into the running `max` and `sum`; nothing else is touched.
 #[inline]
@@ -896,36 +879,6 @@ fn merge512(max: &mut [i8], sum: &mut [i32], mx: __m512i, sm: __m512i, n: usize)
         let s = _mm512_add_epi32(_mm512_maskz_loadu_epi32(mask, sum.as_ptr()), sm);
         _mm512_mask_storeu_epi32(sum.as_mut_ptr(), mask, s);
     }
-}
-
-/// The low `min(t.len(), n, 8)` lanes of `t`, zeros above.
-#[inline]
-#[target_feature(enable = "avx2")]
-fn low256_i32(t: &[i32], n: usize) -> __m256i {
-    if let (true, Some(t)) = (n >= 8, t.first_chunk::<8>()) {
-        // SAFETY: `t` is 8 i32; `loadu` has no alignment requirement.
-        return unsafe { _mm256_loadu_si256(t.as_ptr().cast()) };
-    }
-    let mut lanes = [0i32; 8];
-    let n = t.len().min(n).min(8);
-    lanes[..n].copy_from_slice(&t[..n]);
-    // SAFETY: `lanes` is 8 i32; `loadu` has no alignment requirement.
-    unsafe { _mm256_loadu_si256(lanes.as_ptr().cast()) }
-}
-
-/// [`low256_i32`] for f32.
-#[inline]
-#[target_feature(enable = "avx2")]
-fn low256_f32(t: &[f32], n: usize) -> __m256 {
-    if let (true, Some(t)) = (n >= 8, t.first_chunk::<8>()) {
-        // SAFETY: `t` is 8 f32; `loadu` has no alignment requirement.
-        return unsafe { _mm256_loadu_ps(t.as_ptr()) };
-    }
-    let mut lanes = [0f32; 8];
-    let n = t.len().min(n).min(8);
-    lanes[..n].copy_from_slice(&t[..n]);
-    // SAFETY: `lanes` is 8 f32; `loadu` has no alignment requirement.
-    unsafe { _mm256_loadu_ps(lanes.as_ptr()) }
 }
 
 /// [`merge512`] for 8 lanes.
