@@ -122,10 +122,17 @@ pub fn scratch_words_for_block(model: &Model<'_>, block: usize) -> usize {
         // i32: sums, block accumulators | bytes: block of i16 inputs (8 each), block of
         // activations, block of gathered layer inputs, FC ping-pong
         DType::I8 => {
-            let bytes = b * (16 + acts + widest_input(model)) + fc;
+            let bytes = 16 * b + i8_activation_bytes(model, b);
             pooled + b * widest_layer(model) + bytes.div_ceil(4)
         }
     }
+}
+
+/// The int8 engine's bytes after its block of inputs: the block's activation rows, its
+/// gathered layer inputs and the FC ping-pong buffers (what [`Plan::run_i8`] lays out from the
+/// activation rows on).
+fn i8_activation_bytes(model: &Model<'_>, block: usize) -> usize {
+    block * (model.point_activation_width() + widest_input(model)) + fc_values(model)
 }
 
 /// Values of the FC layers' ping-pong buffers: the pooled features (max and mean) or the
@@ -593,7 +600,7 @@ impl<'m> Plan<'m> {
             bytemuck::try_cast_slice_mut(input_bytes).map_err(|_| InferError::DType)?;
         // The activation rows from a 64-byte boundary, where the lent scratch has the room
         // (`ALIGN_WORDS`); else where they fall.
-        let rest = block * (acts_len + widest_input(m)) + fc_values(m);
+        let rest = i8_activation_bytes(m, block);
         let pad = bytes.as_ptr().align_offset(64);
         let pad = if bytes.len() >= rest.saturating_add(pad) {
             pad
