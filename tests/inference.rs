@@ -246,13 +246,33 @@ fn packed_int8_engine_gives_identical_integers_with_every_kernel_set_and_block()
         .unwrap();
     let mut tested = Vec::new();
     for (_, k) in supported_kernel_sets() {
-        for block in [1, 2, 5, 6, 7, 13, 24] {
+        // Up to `MAX_BLOCK` (96): blocks of whole AMX tile pairs (32, 96) and not.
+        for block in [1, 2, 5, 6, 7, 13, 24, 32, 96] {
             let (mut x, mut y) = outputs();
             let mut scratch = vec![0; scratch_words_for_block(&m, block)];
             let plan = Plan::packed(&m, k, &packed, scratch.len()).unwrap();
             assert!(plan.is_packed() && plan.block() == block);
             plan.run_i8(input, &mut scratch, &mut x, &mut y).unwrap();
             assert_eq!((&x, &y), (&wx, &wy), "{} block {block}", k.name());
+        }
+        // Scratch that starts at different offsets from a cache line, exactly the plan's
+        // words (the activation rows stay where they fall) and `ALIGN_WORDS` more (the engine
+        // moves them to a line): the integers stay the same.
+        let words = scratch_words_for_block(&m, 96);
+        let plan = Plan::packed(&m, k, &packed, words).unwrap();
+        let mut big = vec![0; words + evpose_core::infer::ALIGN_WORDS + 16];
+        for skip in [0, 1, 3, 7, 12, 16] {
+            for lent in [words, words + evpose_core::infer::ALIGN_WORDS] {
+                let (mut x, mut y) = outputs();
+                let scratch = &mut big[skip..][..lent];
+                plan.run_i8(input, scratch, &mut x, &mut y).unwrap();
+                assert_eq!(
+                    (&x, &y),
+                    (&wx, &wy),
+                    "{}, skip {skip}, {lent} words",
+                    k.name()
+                );
+            }
         }
         tested.push(format!(
             "{}{}",
