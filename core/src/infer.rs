@@ -96,9 +96,11 @@ impl core::error::Error for InferError {}
 
 /// Most points an engine processes per pass over the point layers' weights: a multiple of the
 /// packed x86 kernels' six-point register tile (passes of four tiles) and of the AMX kernel's
-/// 32-point tile block, so that a full block leaves no tile half empty (measured on the paper
-/// model on an Intel Xeon with AMX: 2.03–2.12 ms against 2.24–2.38 ms with blocks of 24 points,
-/// in alternating runs; the AVX-512 VNNI table the same either way).
+/// 32-point tile block, so that a full block leaves no tile half empty (on an Intel Xeon with
+/// AMX, a conv5 tile-loop probe ran 1.71–1.96 ms in 32-point blocks against 1.90–2.12 ms in
+/// 24-point ones; the whole paper model, fastest of 100 in ten alternating rounds, 2.03 against
+/// 2.24 ms at best but three wins and three losses in the six rounds where neither run looked
+/// disturbed; the AVX-512 VNNI table the same either way).
 pub const MAX_BLOCK: usize = 96;
 
 /// 32-bit scratch words an inference with `model` needs at least (either engine; it then
@@ -145,8 +147,9 @@ fn fc_values(model: &Model<'_>) -> usize {
 /// Scratch words that, lent beyond what a plan needs ([`Plan::scratch_words`]), let the int8
 /// engine start its activation rows at a 64-byte boundary whatever the scratch's own
 /// alignment: then a row of 64 activations is one cache line, not two. The x86 AMX kernel
-/// reads its input tiles straight from those rows, and a tile load of rows that straddle lines
-/// measured 3.5–4× slower on an Intel Xeon (Emerald Rapids) VM (`examples/amx_rates.rs`).
+/// reads its input tiles straight from those rows, and tile loads of rows that straddle lines
+/// measured 3–7× slower on an Intel Xeon (Emerald Rapids) VM (four loads: 13–27 ns on lines,
+/// 76–100 ns off them; `examples/amx_rates.rs`).
 /// A host lends them; an MCU need not.
 pub const ALIGN_WORDS: usize = 16;
 

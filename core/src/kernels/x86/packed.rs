@@ -28,7 +28,7 @@
 //! once per six points), conv5 in blocks of 16 points ran at 495 GMAC/s on this project's Zen 5
 //! VM (`benches/kernels.rs`, `packed/avx512vnni`), 94 % of the 524 GMAC/s
 //! `kernels::peak_loop` measures, but at 52–55 % of the peak on an Intel Xeon (Emerald Rapids)
-//! VM, where passes of four tiles ran 5–15 % faster (README, "Pooled epilogue on AVX-512 VNNI");
+//! VM, where passes of four tiles ran 0–9 % faster in a conv5 timing loop (README, "Stop 36");
 //! a whole layer per row group (every tile of the call over each group's weights in L1, four-point
 //! tiles) measured about 340 GMAC/s on the Zen 5 (a timing loop, on the same machine while it
 //! was busy).
