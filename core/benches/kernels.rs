@@ -129,8 +129,8 @@ fn packed_layers(c: &mut Criterion) {
 fn pooled_conv5(c: &mut Criterion) {
     // The paper model's last point layer (conv5) as the engine runs it, in a 24-point call (a
     // quarter of the largest `Plan::block`): the packed kernel's int32 rows requantized and
-    // pooled in two more passes,
-    // against the table's pooled kernel (`Kernels::packed_pool_i8`), where it has one.
+    // pooled in two more passes, against the table's pooled kernel
+    // (`Kernels::packed_pool_i8`), where it has one.
     use evpose_core::quant::Requant;
     let (k, n, p) = (512, 1024, 24);
     let w = values(k * n, 7, |v| v as i8);
