@@ -41,7 +41,10 @@
 //! On AVX2 and AVX-512BW the whole paper model runs 1.10–1.25× faster packed than row-major
 //! (README, "AVX2 and AVX-512BW packed kernels"). The AVX2 tile is four points: five, with
 //! two registers each plus the four weight registers and two broadcasts, need 17 of the 16
-//! registers, and the compiler then kept every accumulator in memory.
+//! registers, and the compiler then kept every accumulator in memory. Their tiles run in
+//! passes of four too, slice by slice: a slice of a row group's weights (8 KiB of conv5's on
+//! AVX2) is read from L2 or L3 once per pass of 16 points instead of once per tile (about 5 %
+//! of the whole paper model on a Zen 3, README "Stop 37").
 
 use core::arch::x86_64::*;
 
@@ -526,9 +529,10 @@ macro_rules! widened_i8 {
         mod $m {
             use super::*;
 
-            /// Steps (four inputs each) of a tile's points widened at a time: 1,024 inputs, 2 KiB
-            /// of stack per point. A layer with more inputs is summed in chunks.
-            const CHUNK_STEPS: usize = 256;
+            /// Steps (four inputs each) of a pass's points widened at a time: 512 inputs (the
+            /// paper's widest point layer, conv5), 1 KiB of stack per point. A layer with more
+            /// inputs is summed in chunks.
+            const CHUNK_STEPS: usize = 128;
 
             /// The buffer for layers of up to 128 inputs (every point layer of the MCU model,
             /// the paper's first ones): 256 bytes per point. A call zeroes its whole buffer,
@@ -537,6 +541,10 @@ macro_rules! widened_i8 {
 
             /// Points per register tile.
             const POINTS: usize = $points;
+
+            /// Tiles per pass: each slice of a row group's weights (8 KiB of conv5's on AVX2)
+            /// is read from memory once per pass and from L1 by the pass's other tiles.
+            const PASS: usize = 4;
 
             /// i32 lanes per register.
             const LANES: usize = $lanes;
@@ -547,11 +555,11 @@ macro_rules! widened_i8 {
             /// Slices per row group.
             const SLICES: usize = GROUP_ROWS / (LANES * REGS);
 
-            /// A tile's points' inputs, widened, step by step: `steps[s][i]` holds point `i`'s two
-            /// i16 pairs of step `s`, `(x0, x2)` then `(x1, x3)` (each as the lane value, `x0`
-            /// low). Step-major, so the loop walks the steps beside the weight blocks with no
-            /// index checks. `C` steps.
-            type Widened<const C: usize> = [[[i32; 2]; POINTS]; C];
+            /// A pass's points' inputs, widened, tile by tile and step by step: `steps[t][s][i]`
+            /// holds point `i` of tile `t`'s two i16 pairs of step `s`, `(x0, x2)` then
+            /// `(x1, x3)` (each as the lane value, `x0` low). Step-major within a tile, so the
+            /// loop walks the steps beside the weight blocks with no index checks. `C` steps.
+            type Widened<const C: usize> = [[[[i32; 2]; POINTS]; C]; PASS];
 
             #[doc = concat!("[`crate::kernels::packed::matmat_packed_i8`], bit-exact, with `", $features, "`.")]
             ///
@@ -587,11 +595,12 @@ macro_rules! widened_i8 {
                 (x, x_stride, points, rows, bias, out, out_stride): Call<'_>,
             ) {
                 let (k, steps) = (w.k(), w.steps());
-                let mut buf: Widened<C> = [[[0; 2]; POINTS]; C];
+                let mut buf: Widened<C> = [[[[0; 2]; POINTS]; C]; PASS];
                 let mut first = 0;
                 while first < points {
-                    let m = (points - first).min(POINTS);
-                    let mut corr = [0i32; POINTS];
+                    // A pass: up to `PASS` tiles of points.
+                    let m = (points - first).min(POINTS * PASS);
+                    let mut corr = [0i32; POINTS * PASS];
                     for (c, p) in corr.iter_mut().zip(first..first + m) {
                         *c = vnni_correction(&x[p * x_stride..][..k]);
                     }
@@ -601,7 +610,7 @@ macro_rules! widened_i8 {
                         for i in 0..m {
                             let row = &x[(first + i) * x_stride..][..k];
                             let chunk = row.get(s0 * 4..).unwrap_or(&[]);
-                            widen(chunk, &mut buf[..n], i);
+                            widen(chunk, &mut buf[i / POINTS][..n], i % POINTS);
                         }
                         for g in 0..rows.div_ceil(GROUP_ROWS) {
                             let row0 = g * GROUP_ROWS;
@@ -616,14 +625,23 @@ macro_rules! widened_i8 {
                                 if slice * REGS * LANES >= tile.rows {
                                     break;
                                 }
-                                let io = (first, &corr[..m], &mut *out, out_stride, s0 == 0);
-                                match m {
-                                    1 => run::<1>(&tile, slice, &buf[..n], io),
-                                    2 => run::<2>(&tile, slice, &buf[..n], io),
-                                    3 => run::<3>(&tile, slice, &buf[..n], io),
-                                    4 => run::<4>(&tile, slice, &buf[..n], io),
-                                    // `m ≤ POINTS ≤ 5`.
-                                    _ => run::<5>(&tile, slice, &buf[..n], io),
+                                for (t, xs) in buf.iter().enumerate() {
+                                    let t0 = t * POINTS;
+                                    if t0 >= m {
+                                        break;
+                                    }
+                                    let np = (m - t0).min(POINTS);
+                                    let corr = &corr[t0..t0 + np];
+                                    let io = (first + t0, corr, &mut *out, out_stride, s0 == 0);
+                                    let xs = &xs[..n];
+                                    match np {
+                                        1 => run::<1>(&tile, slice, xs, io),
+                                        2 => run::<2>(&tile, slice, xs, io),
+                                        3 => run::<3>(&tile, slice, xs, io),
+                                        4 => run::<4>(&tile, slice, xs, io),
+                                        // `np ≤ POINTS ≤ 5`.
+                                        _ => run::<5>(&tile, slice, xs, io),
+                                    }
                                 }
                             }
                         }
