@@ -911,14 +911,18 @@ fn check_pooled(
     );
     for kern in with_reference_table() {
         let native = kern.packed_pool_i8(&pw);
-        // The VNNI tables (and AMX, on tiles or on AVX-512 VNNI) pool every shape.
-        if matches!(
-            kern.isa(),
-            Isa::X86Amx | Isa::X86Avx512Vnni | Isa::X86AvxVnni
-        ) {
-            assert!(
+        // The VNNI tables (and AMX, on tiles or on AVX-512 VNNI) pool every shape, AVX2
+        // layers of up to 512 inputs.
+        let offered = match kern.isa() {
+            Isa::X86Amx | Isa::X86Avx512Vnni | Isa::X86AvxVnni => Some(true),
+            Isa::X86Avx2 => Some(k <= 512),
+            _ => None,
+        };
+        if let Some(offered) = offered {
+            assert_eq!(
                 native.is_some(),
-                "{} has no pooled kernel, {ctx}",
+                offered,
+                "{} pooled kernel offered, {ctx}",
                 kern.name()
             );
         }
@@ -932,6 +936,23 @@ fn check_pooled(
                 kern.name()
             );
         }
+    }
+    // The AVX2 kernel called directly on a layer it is not offered for (over 512 inputs)
+    // falls back to the specification.
+    #[cfg(target_arch = "x86_64")]
+    if Isa::X86Avx2.is_supported_here() {
+        let (mut max, mut sum) = (max0.clone(), sum0.clone());
+        // SAFETY: the CPU supports AVX2.
+        unsafe {
+            kernels::x86::matmat_packed_pool_i8_avx2(
+                &pw, x, x_stride, points, bias, requant, &mut max, &mut sum,
+            )
+        };
+        assert_eq!(
+            (&max, &sum),
+            (&want_max, &want_sum),
+            "avx2 pooled (called directly), {ctx}"
+        );
     }
 }
 

@@ -67,8 +67,8 @@ pub use amx::{
 pub use packed::{
     matmat_packed_i16_avx2, matmat_packed_i16_avx512bw, matmat_packed_i16_avx512vnni,
     matmat_packed_i16_avxvnni, matmat_packed_i8_avx2, matmat_packed_i8_avx512bw,
-    matmat_packed_i8_avx512vnni, matmat_packed_i8_avxvnni, matmat_packed_pool_i8_avx512vnni,
-    matmat_packed_pool_i8_avxvnni,
+    matmat_packed_i8_avx512vnni, matmat_packed_i8_avxvnni, matmat_packed_pool_i8_avx2,
+    matmat_packed_pool_i8_avx512vnni, matmat_packed_pool_i8_avxvnni, widened_pool_takes,
 };
 pub use peak::peak_loop;
 
@@ -259,6 +259,7 @@ pub(super) fn packed_pool_kernel(
         Isa::X86Amx if amx::takes(w) => Some(amx_pool),
         Isa::X86Amx | Isa::X86Avx512Vnni => Some(avx512vnni_pool),
         Isa::X86AvxVnni => Some(avxvnni_pool),
+        Isa::X86Avx2 if widened_pool_takes(w) => Some(avx2_pool_i8pk),
         _ => None,
     }
 }
@@ -402,6 +403,7 @@ checked_pool! {
     amx_pool => matmat_packed_pool_i8_amx;
     avx512vnni_pool => matmat_packed_pool_i8_avx512vnni;
     avxvnni_pool => matmat_packed_pool_i8_avxvnni;
+    avx2_pool_i8pk => matmat_packed_pool_i8_avx2;
 }
 
 checked_mm! {

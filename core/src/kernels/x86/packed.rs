@@ -58,6 +58,17 @@ use crate::quant::Requant;
 /// Points per register tile.
 pub const TILE_POINTS: usize = 6;
 
+/// Steps (four inputs each) that the AVX2 and AVX-512BW int8 kernels widen at a time: 512
+/// inputs (the paper's widest point layer, conv5), 1 KiB of stack per point of a pass. A layer
+/// with more inputs is summed in chunks, its int32 sums written between them.
+const WIDENED_CHUNK_STEPS: usize = 128;
+
+/// Whether [`matmat_packed_pool_i8_avx2`] runs `w` natively: at most [`WIDENED_CHUNK_STEPS`]
+/// steps (512 inputs), so that the sums stay in registers until they are pooled.
+pub fn widened_pool_takes(w: &PackedI8<'_>) -> bool {
+    w.steps() <= WIDENED_CHUNK_STEPS
+}
+
 /// Tiles per pass over a row group: [`TILE_POINTS`] · 4 = 24 points (a quarter of the engine's
 /// largest block, `infer::MAX_BLOCK`), whose inputs stay in L1 while each row group's weights
 /// pass.
@@ -106,11 +117,12 @@ struct Tile<'a> {
 /// the low `min(len, $lanes)` lanes of `a + bias − c`).
 macro_rules! packed_loop {
     (
-        $m:ident, $features:literal, $(i8: $i8:ident, dpbusd: $dpbusd:expr,)? i16: $i16:ident;
+        $m:ident, $features:literal,
+        $(i8: $i8:ident, dpbusd: $dpbusd:expr, $(pool: $pool:ident,)?)? i16: $i16:ident;
         $v:ty, $lanes:expr, $regs:expr,
         zero: $zero:expr, set1: $set1:expr, load: $load:expr,
         dpwssd: $dpwssd:expr, store: $store:expr
-        $(, pool: $pool:ident, scaled: $scaled:expr, round: $round:expr, merge: $merge:expr,
+        $(, scaled: $scaled:expr, round: $round:expr, merge: $merge:expr,
             load_i32: $load_i32:expr, cast_f32: $cast_f32:expr, set1_f32: $set1_f32:expr,
             max_f32: $max_f32:expr,
             add: $add:expr, sub: $sub:expr)? $(,)?
@@ -155,6 +167,33 @@ macro_rules! packed_loop {
                     }
                 }
             }
+
+            $(
+            #[doc = concat!("[`crate::kernels::packed::matmat_packed_pool_i8`], bit-exact, with `", $features, "`: ")]
+            /// each register tile's sums requantized and pooled while they are in registers,
+            /// never written to memory as int32 rows, nor as int8 ones.
+            ///
+            /// # Safety
+            #[doc = concat!("The CPU must support `", $features, "`.")]
+            #[allow(clippy::too_many_arguments)]
+            #[target_feature(enable = $features)]
+            pub unsafe fn $pool(
+                w: &PackedI8<'_>,
+                x: &[i8],
+                x_stride: usize,
+                points: usize,
+                bias: &[i32],
+                requant: Requant<'_>,
+                max: &mut [i8],
+                sum: &mut [i32],
+            ) {
+                let pooled = requant.scales.len().min(max.len()).min(sum.len());
+                let (points, rows) = pool_dims(w, x.len(), x_stride, points, bias.len(), pooled);
+                let mut pool = Pool::new(requant, max, sum);
+                tiles::<i8, _, 4>(w, x, x_stride, points, rows, bias, &mut pool)
+            }
+
+            )?
             )?
 
             #[doc = concat!("[`crate::kernels::packed::matmat_packed_i16`], bit-exact, with `", $features, "`.")]
@@ -275,7 +314,7 @@ macro_rules! packed_loop {
             }
 
             /// Where a register tile's sums go.
-            trait Epilogue {
+            pub(super) trait Epilogue {
                 /// The sums `acc` of the `NP` points from `p` for the registers `reg0..` of
                 /// `tile`'s slice (lane `i` of register `reg0 + r`: output
                 /// `tile.row0 + LANES·(reg0 + r) + i`, those below `tile.rows`), before the
@@ -294,9 +333,9 @@ macro_rules! packed_loop {
             }
 
             /// The int32 outputs to `out`, point rows `stride` apart.
-            struct Store<'a> {
-                out: &'a mut [i32],
-                stride: usize,
+            pub(super) struct Store<'a> {
+                pub(super) out: &'a mut [i32],
+                pub(super) stride: usize,
             }
 
             impl Epilogue for Store<'_> {
@@ -324,44 +363,22 @@ macro_rules! packed_loop {
             }
 
             $(
-            #[doc = concat!("[`crate::kernels::packed::matmat_packed_pool_i8`], bit-exact, with `", $features, "`: ")]
-            /// each register tile's sums requantized and pooled while they are in registers,
-            /// never written to memory as int32 rows, nor as int8 ones.
-            ///
-            /// # Safety
-            #[doc = concat!("The CPU must support `", $features, "`.")]
-            #[allow(clippy::too_many_arguments)]
-            #[target_feature(enable = $features)]
-            pub unsafe fn $pool(
-                w: &PackedI8<'_>,
-                x: &[i8],
-                x_stride: usize,
-                points: usize,
-                bias: &[i32],
-                requant: Requant<'_>,
-                max: &mut [i8],
-                sum: &mut [i32],
-            ) {
-                let pooled = requant.scales.len().min(max.len()).min(sum.len());
-                let (points, rows) = pool_dims(w, x.len(), x_stride, points, bias.len(), pooled);
-                let mut pool = Pool {
-                    scales: requant.scales,
-                    alpha: requant.leaky.unwrap_or(1.0),
-                    max,
-                    sum,
-                };
-                tiles::<i8, _, 4>(w, x, x_stride, points, rows, bias, &mut pool)
-            }
-
             /// The outputs requantized to wide values ([`requantize_wide`], here on whole
             /// registers), reduced over the tile's points into a max and a sum per output in
             /// registers, then merged into the running `max` and `sum`. Max and sum of the wide
             /// values (all in `-128..=127`) are those of the int8 values.
-            struct Pool<'a> {
+            pub(super) struct Pool<'a> {
                 scales: &'a [f32],
                 alpha: f32,
                 max: &'a mut [i8],
                 sum: &'a mut [i32],
+            }
+
+            impl<'a> Pool<'a> {
+                /// Pools into the running `max` and `sum` of `requant`'s outputs.
+                pub(super) fn new(requant: Requant<'a>, max: &'a mut [i8], sum: &'a mut [i32]) -> Self {
+                    Self { scales: requant.scales, alpha: requant.leaky.unwrap_or(1.0), max, sum }
+                }
             }
 
             impl Epilogue for Pool<'_> {
@@ -429,13 +446,14 @@ macro_rules! packed_loop {
             }
         }
 
-        pub use $m::{$i16 $(, $i8)? $(, $pool)?};
+        pub use $m::{$i16 $(, $i8 $(, $pool)?)?};
     };
 }
 
 packed_loop! {
     zmm, "avx2,avx512f,avx512bw,avx512vl,avx512vnni",
     i8: matmat_packed_i8_avx512vnni, dpbusd: _mm512_dpbusd_epi32,
+    pool: matmat_packed_pool_i8_avx512vnni,
     i16: matmat_packed_i16_avx512vnni;
     __m512i, 16, 4,
     zero: _mm512_setzero_si512,
@@ -443,7 +461,6 @@ packed_loop! {
     load: load512,
     dpwssd: _mm512_dpwssd_epi32,
     store: store512,
-    pool: matmat_packed_pool_i8_avx512vnni,
     scaled: scaled512,
     round: round512,
     merge: merge512,
@@ -458,6 +475,7 @@ packed_loop! {
 packed_loop! {
     ymm, "avx2,avxvnni",
     i8: matmat_packed_i8_avxvnni, dpbusd: _mm256_dpbusd_avx_epi32,
+    pool: matmat_packed_pool_i8_avxvnni,
     i16: matmat_packed_i16_avxvnni;
     __m256i, 8, 2,
     zero: _mm256_setzero_si256,
@@ -465,7 +483,6 @@ packed_loop! {
     load: load256,
     dpwssd: _mm256_dpwssd_avx_epi32,
     store: store256,
-    pool: matmat_packed_pool_i8_avxvnni,
     scaled: scaled256,
     round: round256,
     merge: merge256,
@@ -486,6 +503,15 @@ packed_loop! {
     load: load256,
     dpwssd: avx2_mac_i16,
     store: store256,
+    scaled: scaled256,
+    round: round256,
+    merge: merge256,
+    load_i32: ld256m_i32,
+    cast_f32: _mm256_castsi256_ps,
+    set1_f32: _mm256_set1_ps,
+    max_f32: _mm256_max_ps,
+    add: _mm256_add_epi32,
+    sub: _mm256_sub_epi32,
 }
 
 /// `y[..n] += a`'s low `n = min(y.len(), n, 8)` lanes, wrapping; nothing else of `y` is touched.
@@ -520,7 +546,7 @@ fn add256(y: &mut [i32], a: __m256i, n: usize) {
 /// `$store` as in [`packed_loop!`], `$accumulate` adding the low lanes to `y`).
 macro_rules! widened_i8 {
     (
-        $m:ident, $features:literal, $i8:ident;
+        $m:ident, $features:literal, $i8:ident $(, pool: $pool:ident)?; base: $base:ident;
         $v:ty, $lanes:expr, $regs:expr, $points:expr,
         zero: $zero:expr, set1: $set1:expr, load: $load:expr,
         slli8: $slli8:expr, srli8: $srli8:expr, madd: $madd:expr, add: $add:expr,
@@ -528,11 +554,10 @@ macro_rules! widened_i8 {
     ) => {
         mod $m {
             use super::*;
+            use super::$base::{Epilogue, Store};
 
-            /// Steps (four inputs each) of a pass's points widened at a time: 512 inputs (the
-            /// paper's widest point layer, conv5), 1 KiB of stack per point. A layer with more
-            /// inputs is summed in chunks.
-            const CHUNK_STEPS: usize = 128;
+            /// Steps of a pass's points widened at a time.
+            const CHUNK_STEPS: usize = WIDENED_CHUNK_STEPS;
 
             /// The buffer for layers of up to 128 inputs (every point layer of the MCU model,
             /// the paper's first ones): 256 bytes per point. A call zeroes its whole buffer,
@@ -576,23 +601,70 @@ macro_rules! widened_i8 {
                 out_stride: usize,
             ) {
                 let (points, rows) = call_dims(w, x, x_stride, points, bias, out, out_stride);
-                let call = (x, x_stride, points, rows, bias, out, out_stride);
+                let mut rows_out = Rows { out, stride: out_stride, add: false };
+                let call = (x, x_stride, points, rows, bias);
+                let later = |r: &mut Rows<'_>, later| r.add = later;
                 if w.steps() <= SMALL_CHUNK_STEPS {
-                    chunked::<SMALL_CHUNK_STEPS>(w, call);
+                    passes::<SMALL_CHUNK_STEPS, _>(w, call, &mut rows_out, later);
                 } else {
-                    chunked::<CHUNK_STEPS>(w, call);
+                    passes::<CHUNK_STEPS, _>(w, call, &mut rows_out, later);
                 }
             }
 
-            /// `(x, x_stride, points, rows, bias, out, out_stride)` of a checked call.
-            type Call<'a> = (&'a [i8], usize, usize, usize, &'a [i32], &'a mut [i32], usize);
+            $(
+            #[doc = concat!("[`crate::kernels::packed::matmat_packed_pool_i8`], bit-exact, with `", $features, "`: ")]
+            /// each register tile's sums requantized and pooled while they are in registers.
+            /// Layers of more than [`WIDENED_CHUNK_STEPS`] steps (whose sums would be
+            /// written between chunks) run the reference instead: [`widened_pool_takes`] says
+            /// which layers this kernel is for.
+            ///
+            /// # Safety
+            #[doc = concat!("The CPU must support `", $features, "`.")]
+            #[allow(clippy::too_many_arguments)]
+            #[target_feature(enable = $features)]
+            pub unsafe fn $pool(
+                w: &PackedI8<'_>,
+                x: &[i8],
+                x_stride: usize,
+                points: usize,
+                bias: &[i32],
+                requant: Requant<'_>,
+                max: &mut [i8],
+                sum: &mut [i32],
+            ) {
+                if !widened_pool_takes(w) {
+                    return crate::kernels::packed::matmat_packed_pool_i8(
+                        w, x, x_stride, points, bias, requant, max, sum,
+                    );
+                }
+                let pooled = requant.scales.len().min(max.len()).min(sum.len());
+                let (points, rows) = pool_dims(w, x.len(), x_stride, points, bias.len(), pooled);
+                let mut pool = super::$base::Pool::new(requant, max, sum);
+                let call = (x, x_stride, points, rows, bias);
+                // One chunk: `widened_pool_takes` bounds the steps.
+                let one = |_: &mut super::$base::Pool<'_>, _| {};
+                if w.steps() <= SMALL_CHUNK_STEPS {
+                    passes::<SMALL_CHUNK_STEPS, _>(w, call, &mut pool, one);
+                } else {
+                    passes::<CHUNK_STEPS, _>(w, call, &mut pool, one);
+                }
+            }
+            )?
 
-            /// The kernel over a widened buffer of `C` steps.
+            /// `(x, x_stride, points, rows, bias)` of a checked call.
+            type Call<'a> = (&'a [i8], usize, usize, usize, &'a [i32]);
+
+            /// Every kernel: the points in passes of up to `PASS` tiles, each pass's inputs
+            /// widened `C` steps at a time into a buffer, then run slice by slice through
+            /// every row group; `later(epilogue, true)` before every chunk but the first
+            /// (whose sums are added to the first's instead of stored).
             #[inline]
             #[target_feature(enable = $features)]
-            fn chunked<const C: usize>(
+            fn passes<const C: usize, E: Epilogue>(
                 w: &PackedI8<'_>,
-                (x, x_stride, points, rows, bias, out, out_stride): Call<'_>,
+                (x, x_stride, points, rows, bias): Call<'_>,
+                epilogue: &mut E,
+                later: fn(&mut E, bool),
             ) {
                 let (k, steps) = (w.k(), w.steps());
                 let mut buf: Widened<C> = [[[[0; 2]; POINTS]; C]; PASS];
@@ -612,6 +684,7 @@ macro_rules! widened_i8 {
                             let chunk = row.get(s0 * 4..).unwrap_or(&[]);
                             widen(chunk, &mut buf[i / POINTS][..n], i % POINTS);
                         }
+                        later(epilogue, s0 > 0);
                         for g in 0..rows.div_ceil(GROUP_ROWS) {
                             let row0 = g * GROUP_ROWS;
                             let tile = Tile {
@@ -631,16 +704,15 @@ macro_rules! widened_i8 {
                                         break;
                                     }
                                     let np = (m - t0).min(POINTS);
-                                    let corr = &corr[t0..t0 + np];
-                                    let io = (first + t0, corr, &mut *out, out_stride, s0 == 0);
+                                    let io = (first + t0, &corr[t0..t0 + np], &mut *epilogue);
                                     let xs = &xs[..n];
                                     match np {
-                                        1 => run::<1>(&tile, slice, xs, io),
-                                        2 => run::<2>(&tile, slice, xs, io),
-                                        3 => run::<3>(&tile, slice, xs, io),
-                                        4 => run::<4>(&tile, slice, xs, io),
+                                        1 => run::<1, E>(&tile, slice, xs, io),
+                                        2 => run::<2, E>(&tile, slice, xs, io),
+                                        3 => run::<3, E>(&tile, slice, xs, io),
+                                        4 => run::<4, E>(&tile, slice, xs, io),
                                         // `np ≤ POINTS ≤ 5`.
-                                        _ => run::<5>(&tile, slice, xs, io),
+                                        _ => run::<5, E>(&tile, slice, xs, io),
                                     }
                                 }
                             }
@@ -679,18 +751,18 @@ macro_rules! widened_i8 {
                 }
             }
 
-            /// `(first point, corrections, out, out_stride, first chunk)` of a tile.
-            type Io<'a, 'b> = (usize, &'a [i32], &'b mut [i32], usize, bool);
+            /// `(first point, corrections, epilogue)` of a tile.
+            type Io<'a, 'b, E> = (usize, &'a [i32], &'b mut E);
 
             /// `NP` points from `p` through slice `slice` of the group over this chunk's widened
-            /// steps; the first chunk stores `sums + bias − corr`, later ones add their sums.
+            /// steps, the sums handed to `epilogue`.
             #[inline]
             #[target_feature(enable = $features)]
-            fn run<const NP: usize>(
+            fn run<const NP: usize, E: Epilogue>(
                 tile: &Tile<'_>,
                 slice: usize,
                 steps: &[[[i32; 2]; POINTS]],
-                (p, corr, out, out_stride, first_chunk): Io<'_, '_>,
+                (p, corr, epilogue): Io<'_, '_, E>,
             ) {
                 let mut acc = [[$zero(); REGS]; NP];
                 let reg0 = slice * REGS;
@@ -708,20 +780,46 @@ macro_rules! widened_i8 {
                         }
                     }
                 }
-                // Over `0..NP`, a constant trip count: a loop the compiler unrolls keeps `acc`
-                // in registers (zipped with `corr`, it kept the accumulators in memory, stored
-                // every step).
-                for (i, a) in acc.into_iter().enumerate() {
-                    let c = corr.get(i).copied().unwrap_or(0);
-                    let y = &mut out[(p + i) * out_stride + tile.row0..][..tile.rows];
-                    for (r, a) in a.into_iter().enumerate() {
-                        let lo = (reg0 + r) * LANES;
-                        if lo >= tile.rows {
-                            break;
-                        }
-                        if first_chunk {
-                            $store(&mut y[lo..], a, &tile.bias[lo..tile.rows], c);
-                        } else {
+                // A copy for the call: handed `&acc` itself, the compiler kept `acc` in memory
+                // through the loop above, a store per accumulator and step, where the pooled
+                // epilogue runs out of line.
+                let sums = acc;
+                // SAFETY: `run` is compiled with the features `finish` needs.
+                unsafe { epilogue.finish(tile, reg0, p, &sums, corr) };
+            }
+
+            /// The int32 outputs of a chunk of steps: the first chunk's stored as the base
+            /// width's [`Store`] stores them (`sums + bias − corr`), later chunks' added.
+            struct Rows<'a> {
+                out: &'a mut [i32],
+                stride: usize,
+                /// Whether the sums are added to what an earlier chunk stored.
+                add: bool,
+            }
+
+            impl Epilogue for Rows<'_> {
+                #[inline]
+                #[target_feature(enable = $features)]
+                unsafe fn finish<const NP: usize>(
+                    &mut self,
+                    tile: &Tile<'_>,
+                    reg0: usize,
+                    p: usize,
+                    acc: &[[$v; REGS]; NP],
+                    corr: &[i32],
+                ) {
+                    if !self.add {
+                        let mut store = Store { out: &mut *self.out, stride: self.stride };
+                        // SAFETY: compiled with the same features as `Store`'s width.
+                        return unsafe { store.finish(tile, reg0, p, acc, corr) };
+                    }
+                    for (i, a) in acc.iter().enumerate().take(corr.len()) {
+                        let y = &mut self.out[(p + i) * self.stride + tile.row0..][..tile.rows];
+                        for (r, &a) in a.iter().enumerate() {
+                            let lo = (reg0 + r) * LANES;
+                            if lo >= tile.rows {
+                                break;
+                            }
                             $accumulate(&mut y[lo..], a, tile.rows - lo);
                         }
                     }
@@ -729,13 +827,12 @@ macro_rules! widened_i8 {
             }
         }
 
-
-        pub use $m::$i8;
+        pub use $m::{$i8 $(, $pool)?};
     };
 }
 
 widened_i8! {
-    avx2_i8, "avx2", matmat_packed_i8_avx2;
+    avx2_i8, "avx2", matmat_packed_i8_avx2, pool: matmat_packed_pool_i8_avx2; base: avx2;
     __m256i, 8, 2, 4,
     zero: _mm256_setzero_si256, set1: _mm256_set1_epi32,
     load: load256, slli8: _mm256_slli_epi16::<8>, srli8: _mm256_srli_epi16::<8>,
@@ -744,7 +841,7 @@ widened_i8! {
 }
 
 widened_i8! {
-    avx512bw_i8, "avx2,avx512f,avx512bw,avx512vl", matmat_packed_i8_avx512bw;
+    avx512bw_i8, "avx2,avx512f,avx512bw,avx512vl", matmat_packed_i8_avx512bw; base: zmm_bw;
     __m512i, 16, 4, 5,
     zero: _mm512_setzero_si512, set1: _mm512_set1_epi32,
     load: load512, slli8: _mm512_slli_epi16::<8>, srli8: _mm512_srli_epi16::<8>,
