@@ -63,8 +63,8 @@ pub const TILE_POINTS: usize = 6;
 /// with more inputs is summed in chunks, its int32 sums written between them.
 const WIDENED_CHUNK_STEPS: usize = 128;
 
-/// Whether [`matmat_packed_pool_i8_avx2`] runs `w` natively: at most [`WIDENED_CHUNK_STEPS`]
-/// steps (512 inputs), so that the sums stay in registers until they are pooled.
+/// Whether [`matmat_packed_pool_i8_avx2`] runs `w` natively: at most 128 steps (512 inputs,
+/// one chunk of widened inputs), so that the sums stay in registers until they are pooled.
 pub fn widened_pool_takes(w: &PackedI8<'_>) -> bool {
     w.steps() <= WIDENED_CHUNK_STEPS
 }
@@ -532,15 +532,17 @@ fn add256(y: &mut [i32], a: __m256i, n: usize) {
 /// A lane's four weight bytes `(b0, b1, b2, b3)` (the unsigned `w + 128`) become the i16 pairs
 /// `(b0, b2)` (a shift pair, which compiles to a mask) and `(b1, b3)` (a shift), once per step
 /// of a slice, shared by the tile's points. Each point's inputs are sign-extended once per call
-/// into the matching pairs, `(x0, x2)` and `(x1, x3)` of every step, in a small step-major
-/// buffer (a chunk of 256 steps at a time); the loop broadcasts them from there. One step of
+/// into the matching pairs, `(x0, x2)` and `(x1, x3)` of every step, in a small buffer of a
+/// pass's four tiles, step-major per tile (128 steps at a time); the loop broadcasts them from
+/// there. One step of
 /// one point is then two broadcasts, two `vpmaddwd` and two adds for 32 MACs, where widening
 /// the broadcast inputs in the loop would add three shifts, enough to make the shifts the limit.
 /// Each i16 product is at most 255 · 128 in magnitude, so every pair sum and the sum of two
 /// are exact in i32, as in `vpdpbusd`; the sums wrap modulo 2^32 like it.
 ///
 /// The macro stamps this kernel for one width:
-/// module `$m` with kernel `$i8`, compiled with `$features`, on registers `$v` of `$lanes` i32
+/// module `$m` with kernel `$i8` (and the pooled `$pool`, over the epilogues of the
+/// [`packed_loop!`] module `$base` of the same width), compiled with `$features`, on registers `$v` of `$lanes` i32
 /// lanes, `$regs` registers per slice, `$points` points per tile (at most 5), and the width's
 /// intrinsics (`$slli8`/`$srli8`, shifts of each i16 by 8, `$madd` for `vpmaddwd`, `$add`;
 /// `$store` as in [`packed_loop!`], `$accumulate` adding the low lanes to `y`).
@@ -614,9 +616,9 @@ macro_rules! widened_i8 {
             $(
             #[doc = concat!("[`crate::kernels::packed::matmat_packed_pool_i8`], bit-exact, with `", $features, "`: ")]
             /// each register tile's sums requantized and pooled while they are in registers.
-            /// Layers of more than [`WIDENED_CHUNK_STEPS`] steps (whose sums would be
-            /// written between chunks) run the reference instead: [`widened_pool_takes`] says
-            /// which layers this kernel is for.
+            /// Layers of more than 512 inputs (whose sums would be written between chunks)
+            /// run the reference instead: [`widened_pool_takes`] says which layers this kernel
+            /// is for.
             ///
             /// # Safety
             #[doc = concat!("The CPU must support `", $features, "`.")]
