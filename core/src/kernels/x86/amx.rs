@@ -208,8 +208,8 @@ pub unsafe fn matmat_packed_i8_amx(
 
 /// [`crate::kernels::packed::matmat_packed_pool_i8`], bit-exact, on AMX tiles: the last point
 /// layer's sums requantized and pooled from the tile stores' buffer, never written to memory
-/// as int32 rows, nor as int8 ones. Where the tiles do not take `w` ([`takes`]) it runs
-/// [`matmat_packed_pool_i8_avx512vnni`].
+/// as int32 rows, nor as int8 ones. Where the tiles do not take `w` (`takes`: `K` a multiple of
+/// 64 from [`MIN_K`]) it runs [`matmat_packed_pool_i8_avx512vnni`].
 ///
 /// # Safety
 /// As [`matmat_packed_i8_amx`].
