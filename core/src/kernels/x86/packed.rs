@@ -605,12 +605,7 @@ macro_rules! widened_i8 {
                 let (points, rows) = call_dims(w, x, x_stride, points, bias, out, out_stride);
                 let mut rows_out = Rows { out, stride: out_stride, add: false };
                 let call = (x, x_stride, points, rows, bias);
-                let later = |r: &mut Rows<'_>, later| r.add = later;
-                if w.steps() <= SMALL_CHUNK_STEPS {
-                    passes::<SMALL_CHUNK_STEPS, _>(w, call, &mut rows_out, later);
-                } else {
-                    passes::<CHUNK_STEPS, _>(w, call, &mut rows_out, later);
-                }
+                passes(w, call, &mut rows_out, |r, later| r.add = later);
             }
 
             $(
@@ -644,17 +639,28 @@ macro_rules! widened_i8 {
                 let mut pool = super::$base::Pool::new(requant, max, sum);
                 let call = (x, x_stride, points, rows, bias);
                 // One chunk: `widened_pool_takes` bounds the steps.
-                let one = |_: &mut super::$base::Pool<'_>, _| {};
-                if w.steps() <= SMALL_CHUNK_STEPS {
-                    passes::<SMALL_CHUNK_STEPS, _>(w, call, &mut pool, one);
-                } else {
-                    passes::<CHUNK_STEPS, _>(w, call, &mut pool, one);
-                }
+                passes(w, call, &mut pool, |_, _| {});
             }
             )?
 
             /// `(x, x_stride, points, rows, bias)` of a checked call.
             type Call<'a> = (&'a [i8], usize, usize, usize, &'a [i32]);
+
+            /// [`chunked`] over the small buffer where the layer fits it, else the large one.
+            #[inline]
+            #[target_feature(enable = $features)]
+            fn passes<E: Epilogue>(
+                w: &PackedI8<'_>,
+                call: Call<'_>,
+                epilogue: &mut E,
+                later: fn(&mut E, bool),
+            ) {
+                if w.steps() <= SMALL_CHUNK_STEPS {
+                    chunked::<SMALL_CHUNK_STEPS, E>(w, call, epilogue, later);
+                } else {
+                    chunked::<CHUNK_STEPS, E>(w, call, epilogue, later);
+                }
+            }
 
             /// Every kernel: the points in passes of up to `PASS` tiles, each pass's inputs
             /// widened `C` steps at a time into a buffer, then run slice by slice through
@@ -662,7 +668,7 @@ macro_rules! widened_i8 {
             /// (whose sums are added to the first's instead of stored).
             #[inline]
             #[target_feature(enable = $features)]
-            fn passes<const C: usize, E: Epilogue>(
+            fn chunked<const C: usize, E: Epilogue>(
                 w: &PackedI8<'_>,
                 (x, x_stride, points, rows, bias): Call<'_>,
                 epilogue: &mut E,
