@@ -937,8 +937,8 @@ fn check_pooled(
             );
         }
     }
-    // The AVX2 kernel called directly on a layer it is not offered for (over 512 inputs)
-    // falls back to the specification.
+    // The AVX2 kernel called directly, on every shape: natively up to 512 inputs, past that
+    // (where the table does not offer it) through its fallback to the specification.
     #[cfg(target_arch = "x86_64")]
     if Isa::X86Avx2.is_supported_here() {
         let (mut max, mut sum) = (max0.clone(), sum0.clone());
