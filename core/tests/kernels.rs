@@ -911,11 +911,11 @@ fn check_pooled(
     );
     for kern in with_reference_table() {
         let native = kern.packed_pool_i8(&pw);
-        // The VNNI tables (and AMX, on tiles or on AVX-512 VNNI) pool every shape, AVX2
-        // layers of up to 512 inputs.
+        // The VNNI tables (and AMX, on tiles or on AVX-512 VNNI) pool every shape, AVX2 and
+        // AVX-512BW layers of up to 512 inputs.
         let offered = match kern.isa() {
             Isa::X86Amx | Isa::X86Avx512Vnni | Isa::X86AvxVnni => Some(true),
-            Isa::X86Avx2 => Some(k <= 512),
+            Isa::X86Avx2 | Isa::X86Avx512Bw => Some(k <= 512),
             _ => None,
         };
         if let Some(offered) = offered {
@@ -937,22 +937,42 @@ fn check_pooled(
             );
         }
     }
-    // The AVX2 kernel called directly, on every shape: natively up to 512 inputs, past that
-    // (where the table does not offer it) through its fallback to the specification.
+    // The AVX2 and AVX-512BW kernels called directly, on every shape: natively up to 512
+    // inputs, past that (where the table does not offer them) through their fallback to the
+    // specification.
     #[cfg(target_arch = "x86_64")]
-    if Isa::X86Avx2.is_supported_here() {
-        let (mut max, mut sum) = (max0.clone(), sum0.clone());
-        // SAFETY: the CPU supports AVX2.
-        unsafe {
-            kernels::x86::matmat_packed_pool_i8_avx2(
-                &pw, x, x_stride, points, bias, requant, &mut max, &mut sum,
-            )
-        };
-        assert_eq!(
-            (&max, &sum),
-            (&want_max, &want_sum),
-            "avx2 pooled (called directly), {ctx}"
+    {
+        type Direct = unsafe fn(
+            &PackedI8<'_>,
+            &[i8],
+            usize,
+            usize,
+            &[i32],
+            Requant<'_>,
+            &mut [i8],
+            &mut [i32],
         );
+        let direct: [(Isa, Direct); 2] = [
+            (Isa::X86Avx2, kernels::x86::matmat_packed_pool_i8_avx2),
+            (
+                Isa::X86Avx512Bw,
+                kernels::x86::matmat_packed_pool_i8_avx512bw,
+            ),
+        ];
+        for (isa, f) in direct {
+            if !isa.is_supported_here() {
+                continue;
+            }
+            let (mut max, mut sum) = (max0.clone(), sum0.clone());
+            // SAFETY: the CPU supports the kernel's features (checked above).
+            unsafe { f(&pw, x, x_stride, points, bias, requant, &mut max, &mut sum) };
+            assert_eq!(
+                (&max, &sum),
+                (&want_max, &want_sum),
+                "{} pooled (called directly), {ctx}",
+                isa.name()
+            );
+        }
     }
 }
 

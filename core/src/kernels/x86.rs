@@ -68,7 +68,8 @@ pub use packed::{
     matmat_packed_i16_avx2, matmat_packed_i16_avx512bw, matmat_packed_i16_avx512vnni,
     matmat_packed_i16_avxvnni, matmat_packed_i8_avx2, matmat_packed_i8_avx512bw,
     matmat_packed_i8_avx512vnni, matmat_packed_i8_avxvnni, matmat_packed_pool_i8_avx2,
-    matmat_packed_pool_i8_avx512vnni, matmat_packed_pool_i8_avxvnni, widened_pool_takes,
+    matmat_packed_pool_i8_avx512bw, matmat_packed_pool_i8_avx512vnni,
+    matmat_packed_pool_i8_avxvnni, widened_pool_takes,
 };
 pub use peak::peak_loop;
 
@@ -249,8 +250,9 @@ pub(super) fn f32_kernel(k: &Kernels) -> Option<super::MatvecF32> {
 }
 
 /// The native pooled packed kernel of an x86 table's ISA for `w`'s shape, if it has one (the
-/// VNNI tables; the AMX table's runs on tiles where they take `w`, else AVX-512 VNNI's); the
-/// same invariant as [`f32_kernel`].
+/// VNNI tables; the AMX table's runs on tiles where they take `w`, else AVX-512 VNNI's; AVX2
+/// and AVX-512BW for layers of up to 512 inputs, [`widened_pool_takes`]); the same invariant
+/// as [`f32_kernel`].
 pub(super) fn packed_pool_kernel(
     k: &Kernels,
     w: &super::PackedI8<'_>,
@@ -260,6 +262,7 @@ pub(super) fn packed_pool_kernel(
         Isa::X86Amx | Isa::X86Avx512Vnni => Some(avx512vnni_pool),
         Isa::X86AvxVnni => Some(avxvnni_pool),
         Isa::X86Avx2 if widened_pool_takes(w) => Some(avx2_pool_i8pk),
+        Isa::X86Avx512Bw if widened_pool_takes(w) => Some(avx512bw_pool_i8pk),
         _ => None,
     }
 }
@@ -404,6 +407,7 @@ checked_pool! {
     avx512vnni_pool => matmat_packed_pool_i8_avx512vnni;
     avxvnni_pool => matmat_packed_pool_i8_avxvnni;
     avx2_pool_i8pk => matmat_packed_pool_i8_avx2;
+    avx512bw_pool_i8pk => matmat_packed_pool_i8_avx512bw;
 }
 
 checked_mm! {

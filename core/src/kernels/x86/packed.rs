@@ -34,9 +34,10 @@
 //! was busy).
 //!
 //! The engine's last point layer can skip memory altogether: the pooled kernels
-//! ([`matmat_packed_pool_i8_avx512vnni`], [`matmat_packed_pool_i8_avxvnni`]) requantize each
-//! register tile's sums and reduce them into the running max and sum, where the plain kernels
-//! store int32 rows that the engine then requantizes to int8 rows and pools.
+//! ([`matmat_packed_pool_i8_avx512vnni`], [`matmat_packed_pool_i8_avxvnni`], and for layers of
+//! up to 512 inputs [`matmat_packed_pool_i8_avx2`], [`matmat_packed_pool_i8_avx512bw`])
+//! requantize each register tile's sums and reduce them into the running max and sum, where
+//! the plain kernels store int32 rows that the engine then requantizes to int8 rows and pools.
 //!
 //! On AVX2 and AVX-512BW the whole paper model runs 1.10–1.25× faster packed than row-major
 //! (README, "AVX2 and AVX-512BW packed kernels"). The AVX2 tile is four points: five, with
@@ -63,8 +64,9 @@ pub const TILE_POINTS: usize = 6;
 /// with more inputs is summed in chunks, its int32 sums written between them.
 const WIDENED_CHUNK_STEPS: usize = 128;
 
-/// Whether [`matmat_packed_pool_i8_avx2`] runs `w` natively: at most 128 steps (512 inputs,
-/// one chunk of widened inputs), so that the sums stay in registers until they are pooled.
+/// Whether [`matmat_packed_pool_i8_avx2`] and [`matmat_packed_pool_i8_avx512bw`] run `w`
+/// natively: at most 128 steps (512 inputs, one chunk of widened inputs), so that the sums stay
+/// in registers until they are pooled.
 pub fn widened_pool_takes(w: &PackedI8<'_>) -> bool {
     w.steps() <= WIDENED_CHUNK_STEPS
 }
@@ -113,8 +115,10 @@ struct Tile<'a> {
 /// Stamps the loop for one register width: a module `$m` with the int8 and int16 kernels
 /// `$i8`/`$i16`, compiled with `$features`, on registers `$v` of `$lanes` i32 lanes, `$regs`
 /// registers per slice of a row group, and the width's intrinsics (`$zero`, `$set1`, `$load`
-/// of one register of a block, `$dpbusd`, `$dpwssd`, `$add`, `$sub`, and `$store`, which stores
-/// the low `min(len, $lanes)` lanes of `a + bias − c`).
+/// of one register of a block, `$dpbusd`, `$dpwssd`, and `$store`, which stores the low
+/// `min(len, $lanes)` lanes of `a + bias − c`). With `epilogue: $ep` (the module of the pooled
+/// epilogue's steps for the width, [`ep512`] or [`ep256`]) it also stamps the pooled epilogue
+/// `Pool`.
 macro_rules! packed_loop {
     (
         $m:ident, $features:literal,
@@ -122,10 +126,7 @@ macro_rules! packed_loop {
         $v:ty, $lanes:expr, $regs:expr,
         zero: $zero:expr, set1: $set1:expr, load: $load:expr,
         dpwssd: $dpwssd:expr, store: $store:expr
-        $(, scaled: $scaled:expr, round: $round:expr, merge: $merge:expr,
-            load_i32: $load_i32:expr, cast_f32: $cast_f32:expr, set1_f32: $set1_f32:expr,
-            max_f32: $max_f32:expr,
-            add: $add:expr, sub: $sub:expr)? $(,)?
+        $(, epilogue: $ep:ident)? $(,)?
     ) => {
         mod $m {
             use super::*;
@@ -403,21 +404,21 @@ macro_rules! packed_loop {
                         }
                         let (o, n) = (tile.row0 + lo, tile.rows - lo);
                         // Lanes past `n` (bias and scale 0) requantize to 0 and are not merged.
-                        let bias = $load_i32(&tile.bias[lo..tile.rows]);
+                        let bias = $ep::load_i32(&tile.bias[lo..tile.rows]);
                         let scales = self.scales.get(o..o + n).unwrap_or_default();
-                        let scale = $cast_f32($load_i32(bytemuck::cast_slice(scales)));
+                        let scale = $ep::cast_f32($ep::load_i32(bytemuck::cast_slice(scales)));
                         // The max is taken before rounding, once per register: rounding is
                         // monotone, so the rounded max is the max of the rounded values.
-                        let (mut mx, mut sm) = ($set1_f32(-128.0), $zero());
+                        let (mut mx, mut sm) = ($ep::set1_f32(-128.0), $zero());
                         for (a, &c) in acc.iter().zip(corr) {
-                            let v = $sub($add(a[r], bias), $set1(c));
-                            let f = $scaled(v, scale, self.alpha);
-                            mx = $max_f32(mx, f);
-                            sm = $add(sm, $round(f));
+                            let v = $ep::sub($ep::add(a[r], bias), $set1(c));
+                            let f = $ep::scaled(v, scale, self.alpha);
+                            mx = $ep::max_f32(mx, f);
+                            sm = $ep::add(sm, $ep::round(f));
                         }
                         let max = self.max.get_mut(o..).unwrap_or_default();
                         let sum = self.sum.get_mut(o..).unwrap_or_default();
-                        $merge(max, sum, $round(mx), sm, n);
+                        $ep::merge(max, sum, $ep::round(mx), sm, n);
                     }
                 }
             }
@@ -461,15 +462,7 @@ packed_loop! {
     load: load512,
     dpwssd: _mm512_dpwssd_epi32,
     store: store512,
-    scaled: scaled512,
-    round: round512,
-    merge: merge512,
-    load_i32: ld512m_i32,
-    cast_f32: _mm512_castsi512_ps,
-    set1_f32: _mm512_set1_ps,
-    max_f32: _mm512_max_ps,
-    add: _mm512_add_epi32,
-    sub: _mm512_sub_epi32,
+    epilogue: ep512,
 }
 
 packed_loop! {
@@ -483,15 +476,7 @@ packed_loop! {
     load: load256,
     dpwssd: _mm256_dpwssd_avx_epi32,
     store: store256,
-    scaled: scaled256,
-    round: round256,
-    merge: merge256,
-    load_i32: ld256m_i32,
-    cast_f32: _mm256_castsi256_ps,
-    set1_f32: _mm256_set1_ps,
-    max_f32: _mm256_max_ps,
-    add: _mm256_add_epi32,
-    sub: _mm256_sub_epi32,
+    epilogue: ep256,
 }
 
 packed_loop! {
@@ -503,15 +488,7 @@ packed_loop! {
     load: load256,
     dpwssd: avx2_mac_i16,
     store: store256,
-    scaled: scaled256,
-    round: round256,
-    merge: merge256,
-    load_i32: ld256m_i32,
-    cast_f32: _mm256_castsi256_ps,
-    set1_f32: _mm256_set1_ps,
-    max_f32: _mm256_max_ps,
-    add: _mm256_add_epi32,
-    sub: _mm256_sub_epi32,
+    epilogue: ep256,
 }
 
 /// `y[..n] += a`'s low `n = min(y.len(), n, 8)` lanes, wrapping; nothing else of `y` is touched.
@@ -849,7 +826,8 @@ widened_i8! {
 }
 
 widened_i8! {
-    avx512bw_i8, "avx2,avx512f,avx512bw,avx512vl", matmat_packed_i8_avx512bw; base: zmm_bw;
+    avx512bw_i8, "avx2,avx512f,avx512bw,avx512vl", matmat_packed_i8_avx512bw,
+    pool: matmat_packed_pool_i8_avx512bw; base: zmm_bw;
     __m512i, 16, 4, 5,
     zero: _mm512_setzero_si512, set1: _mm512_set1_epi32,
     load: load512, slli8: _mm512_slli_epi16::<8>, srli8: _mm512_srli_epi16::<8>,
@@ -879,6 +857,7 @@ packed_loop! {
     load: load512,
     dpwssd: avx512bw_mac_i16,
     store: store512,
+    epilogue: ep512,
 }
 
 /// Register `reg` (bytes `64·reg..`) of a block; `reg < 4`.
@@ -934,6 +913,28 @@ fn store256(y: &mut [i32], a: __m256i, bias: &[i32], c: i32) {
     for ((y, &l), &b) in y.iter_mut().zip(&lanes).zip(bias).take(n) {
         *y = l.wrapping_add(b).wrapping_sub(c);
     }
+}
+
+/// The pooled epilogue's steps on 512-bit registers, under the names [`packed_loop!`] uses.
+mod ep512 {
+    pub(super) use super::{
+        ld512m_i32 as load_i32, merge512 as merge, round512 as round, scaled512 as scaled,
+    };
+    pub(super) use core::arch::x86_64::{
+        _mm512_add_epi32 as add, _mm512_castsi512_ps as cast_f32, _mm512_max_ps as max_f32,
+        _mm512_set1_ps as set1_f32, _mm512_sub_epi32 as sub,
+    };
+}
+
+/// The pooled epilogue's steps on 256-bit registers, under the names [`packed_loop!`] uses.
+mod ep256 {
+    pub(super) use super::{
+        ld256m_i32 as load_i32, merge256 as merge, round256 as round, scaled256 as scaled,
+    };
+    pub(super) use core::arch::x86_64::{
+        _mm256_add_epi32 as add, _mm256_castsi256_ps as cast_f32, _mm256_max_ps as max_f32,
+        _mm256_set1_ps as set1_f32, _mm256_sub_epi32 as sub,
+    };
 }
 
 // The pooled epilogue's steps ([`crate::quant::requantize_wide`] on whole registers, and the
