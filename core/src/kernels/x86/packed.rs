@@ -397,30 +397,79 @@ macro_rules! packed_loop {
                     acc: &[[$v; REGS]; NP],
                     corr: &[i32],
                 ) {
+                    // Each point's correction broadcast once for the slice's registers.
+                    let cs: [$v; NP] = core::array::from_fn(|i| $set1(corr.get(i).map_or(0, |&c| c)));
+                    let np = corr.len().min(NP);
+                    let (lo, alpha) = (reg0 * LANES, self.alpha);
+                    let o = tile.row0 + lo;
+                    // A whole slice of outputs (every tile of a layer whose outputs are a
+                    // multiple of 64): slices of known length, so no masks and no checks.
+                    if let (true, Some(bias), Some(scales), Some(max), Some(sum)) = (
+                        tile.rows >= lo + SLICE,
+                        tile.bias.get(lo..).and_then(|b| b.first_chunk::<SLICE>()),
+                        self.scales.get(o..).and_then(|s| s.first_chunk::<SLICE>()),
+                        self.max.get_mut(o..).and_then(|m| m.first_chunk_mut::<SLICE>()),
+                        self.sum.get_mut(o..).and_then(|s| s.first_chunk_mut::<SLICE>()),
+                    ) {
+                        let (bias, _) = bias.as_chunks::<LANES>();
+                        let (scales, _) = scales.as_chunks::<LANES>();
+                        let (max, _) = max.as_chunks_mut::<LANES>();
+                        let (sum, _) = sum.as_chunks_mut::<LANES>();
+                        for (r, (((b, s), m), t)) in bias.iter().zip(scales).zip(max).zip(sum).enumerate() {
+                            let outs = (b.as_slice(), s.as_slice(), m.as_mut_slice(), t.as_mut_slice());
+                            pool_register(acc, &cs, np, r, outs, alpha, LANES);
+                        }
+                        return;
+                    }
                     for r in 0..REGS {
                         let lo = (reg0 + r) * LANES;
                         if lo >= tile.rows {
                             break;
                         }
                         let (o, n) = (tile.row0 + lo, tile.rows - lo);
-                        // Lanes past `n` (bias and scale 0) requantize to 0 and are not merged.
-                        let bias = $ep::load_i32(&tile.bias[lo..tile.rows]);
-                        let scales = self.scales.get(o..o + n).unwrap_or_default();
-                        let scale = $ep::cast_f32($ep::load_i32(bytemuck::cast_slice(scales)));
-                        // The max is taken before rounding, once per register: rounding is
-                        // monotone, so the rounded max is the max of the rounded values.
-                        let (mut mx, mut sm) = ($ep::set1_f32(-128.0), $zero());
-                        for (a, &c) in acc.iter().zip(corr) {
-                            let v = $ep::sub($ep::add(a[r], bias), $set1(c));
-                            let f = $ep::scaled(v, scale, self.alpha);
-                            mx = $ep::max_f32(mx, f);
-                            sm = $ep::add(sm, $ep::round(f));
-                        }
-                        let max = self.max.get_mut(o..).unwrap_or_default();
-                        let sum = self.sum.get_mut(o..).unwrap_or_default();
-                        $ep::merge(max, sum, $ep::round(mx), sm, n);
+                        let outs = (
+                            &tile.bias[lo..tile.rows],
+                            self.scales.get(o..o + n).unwrap_or_default(),
+                            self.max.get_mut(o..).unwrap_or_default(),
+                            self.sum.get_mut(o..).unwrap_or_default(),
+                        );
+                        pool_register(acc, &cs, np, r, outs, alpha, n);
                     }
                 }
+            }
+
+            /// Outputs per slice of a row group.
+            const SLICE: usize = REGS * LANES;
+
+            /// `(bias, scales, max, sum)` of a register's outputs.
+            type Outs<'a> = (&'a [i32], &'a [f32], &'a mut [i8], &'a mut [i32]);
+
+            /// Register `r` of the first `np` points' sums (`cs`: their corrections,
+            /// broadcast) requantized and pooled into its `n` outputs. Lanes past `n` (bias and
+            /// scale 0) requantize to 0 and are not merged.
+            #[inline]
+            #[target_feature(enable = $features)]
+            fn pool_register<const NP: usize>(
+                acc: &[[$v; REGS]; NP],
+                cs: &[$v; NP],
+                np: usize,
+                r: usize,
+                (bias, scales, max, sum): Outs<'_>,
+                alpha: f32,
+                n: usize,
+            ) {
+                let bias = $ep::load_i32(bias);
+                let scale = $ep::cast_f32($ep::load_i32(bytemuck::cast_slice(scales)));
+                // The max is taken before rounding, once per register: rounding is monotone,
+                // so the rounded max is the max of the rounded values.
+                let (mut mx, mut sm) = ($ep::set1_f32(-128.0), $zero());
+                for (a, &c) in acc.iter().zip(cs).take(np) {
+                    let v = $ep::sub($ep::add(a[r], bias), c);
+                    let f = $ep::scaled(v, scale, alpha);
+                    mx = $ep::max_f32(mx, f);
+                    sm = $ep::add(sm, $ep::round(f));
+                }
+                $ep::merge(max, sum, $ep::round(mx), sm, n);
             }
             )?
 
