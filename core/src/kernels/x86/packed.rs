@@ -118,7 +118,7 @@ struct Tile<'a> {
 /// of one register of a block, `$dpbusd`, `$dpwssd`, and `$store`, which stores the low
 /// `min(len, $lanes)` lanes of `a + bias − c`). With `epilogue: $ep` (the module of the pooled
 /// epilogue's steps for the width, [`ep512`] or [`ep256`]) it also stamps the pooled epilogue
-/// `Pool`.
+/// `Pool`, and with `pool: $pool` (a VNNI width) the pooled int8 kernel `$pool` over it.
 macro_rules! packed_loop {
     (
         $m:ident, $features:literal,
@@ -398,12 +398,14 @@ macro_rules! packed_loop {
                     corr: &[i32],
                 ) {
                     // Each point's correction broadcast once for the slice's registers.
-                    let cs: [$v; NP] = core::array::from_fn(|i| $set1(corr.get(i).map_or(0, |&c| c)));
+                    let cs: [$v; NP] =
+                        core::array::from_fn(|i| $set1(corr.get(i).copied().unwrap_or(0)));
                     let np = corr.len().min(NP);
                     let (lo, alpha) = (reg0 * LANES, self.alpha);
                     let o = tile.row0 + lo;
-                    // A whole slice of outputs (every tile of a layer whose outputs are a
-                    // multiple of 64): slices of known length, so no masks and no checks.
+                    // A whole slice of `SLICE` outputs (64 at 512 bits, 16 at 256; every slice
+                    // of a layer whose outputs are a multiple of 64): chunks of known length,
+                    // so no masks and no checks.
                     if let (true, Some(bias), Some(scales), Some(max), Some(sum)) = (
                         tile.rows >= lo + SLICE,
                         tile.bias.get(lo..).and_then(|b| b.first_chunk::<SLICE>()),
@@ -415,8 +417,9 @@ macro_rules! packed_loop {
                         let (scales, _) = scales.as_chunks::<LANES>();
                         let (max, _) = max.as_chunks_mut::<LANES>();
                         let (sum, _) = sum.as_chunks_mut::<LANES>();
-                        for (r, (((b, s), m), t)) in bias.iter().zip(scales).zip(max).zip(sum).enumerate() {
-                            let outs = (b.as_slice(), s.as_slice(), m.as_mut_slice(), t.as_mut_slice());
+                        let chunks = bias.iter().zip(scales).zip(max).zip(sum);
+                        for (r, (((b, s), m), t)) in chunks.enumerate() {
+                            let outs = (&b[..], &s[..], &mut m[..], &mut t[..]);
                             pool_register(acc, &cs, np, r, outs, alpha, LANES);
                         }
                         return;
