@@ -467,8 +467,9 @@ impl Kernels {
     /// one for `w`'s shape: the VNNI tables' (AVX-512 VNNI, AVX-VNNI) for every shape, the AMX
     /// table's on tiles where `K` is a multiple of 64 from `x86::AMX_MIN_K` and AVX-512 VNNI's
     /// otherwise, the AVX2 and AVX-512BW tables' for `K` up to 512 (one chunk of widened
-    /// inputs, `x86::widened_pool_takes`). The engine runs its last point layer with it where there is one, and
-    /// otherwise requantizes and pools [`Kernels::matmat_packed_i8`]'s int32 rows.
+    /// inputs, `x86::widened_pool_takes`). The engine runs its last point layer with it where
+    /// there is one, and otherwise requantizes and pools [`Kernels::matmat_packed_i8`]'s int32
+    /// rows.
     pub fn packed_pool_i8(&self, w: &PackedI8<'_>) -> Option<MatmatPackedPoolI8> {
         #[cfg(target_arch = "x86_64")]
         if let Some(k) = x86::packed_pool_kernel(self, w) {

@@ -401,17 +401,17 @@ macro_rules! packed_loop {
                     let cs: [$v; NP] =
                         core::array::from_fn(|i| $set1(corr.get(i).copied().unwrap_or(0)));
                     let np = corr.len().min(NP);
-                    let (lo, alpha) = (reg0 * LANES, self.alpha);
-                    let o = tile.row0 + lo;
+                    let (lo0, alpha) = (reg0 * LANES, self.alpha);
+                    let o0 = tile.row0 + lo0;
                     // A whole slice of `SLICE` outputs (64 at 512 bits, 16 at 256; every slice
                     // of a layer whose outputs are a multiple of 64): chunks of known length,
                     // so no masks and no checks.
                     if let (true, Some(bias), Some(scales), Some(max), Some(sum)) = (
-                        tile.rows >= lo + SLICE,
-                        tile.bias.get(lo..).and_then(|b| b.first_chunk::<SLICE>()),
-                        self.scales.get(o..).and_then(|s| s.first_chunk::<SLICE>()),
-                        self.max.get_mut(o..).and_then(|m| m.first_chunk_mut::<SLICE>()),
-                        self.sum.get_mut(o..).and_then(|s| s.first_chunk_mut::<SLICE>()),
+                        tile.rows >= lo0 + SLICE,
+                        tile.bias.get(lo0..).and_then(|b| b.first_chunk::<SLICE>()),
+                        self.scales.get(o0..).and_then(|s| s.first_chunk::<SLICE>()),
+                        self.max.get_mut(o0..).and_then(|m| m.first_chunk_mut::<SLICE>()),
+                        self.sum.get_mut(o0..).and_then(|s| s.first_chunk_mut::<SLICE>()),
                     ) {
                         let (bias, _) = bias.as_chunks::<LANES>();
                         let (scales, _) = scales.as_chunks::<LANES>();
