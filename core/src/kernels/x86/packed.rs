@@ -310,8 +310,11 @@ macro_rules! packed_loop {
                         unsafe { T::mac(a, &wv, T::lane_bits(&row[full * S..])) };
                     }
                 }
+                // A copy for `finish` to read: `acc` itself then never lives in memory, so
+                // that its zeros are register clears, not a `memset` of the whole tile.
+                let sums = acc;
                 // SAFETY: `run` is compiled with the features `finish` needs.
-                unsafe { epilogue.finish(tile, reg0, p, &acc, corr) };
+                unsafe { epilogue.finish(tile, reg0, p, &sums, corr) };
             }
 
             /// Where a register tile's sums go.
