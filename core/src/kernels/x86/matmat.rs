@@ -2,8 +2,6 @@
 //! written once (`matmat_body!`), with the parent's steps and reductions.
 #![allow(clippy::incompatible_msrv)]
 
-use core::arch::x86_64::*;
-
 use super::*;
 
 /// Points per group: the VNNI corrections of a group live in a stack array, and the loops run

@@ -2,8 +2,6 @@
 //! (`matvec_body!`), each family's load and multiply-accumulate steps from the parent.
 #![allow(clippy::incompatible_msrv)]
 
-use core::arch::x86_64::*;
-
 use super::*;
 
 /// The matrix-vector loop shared by every kernel, four rows at a time:
