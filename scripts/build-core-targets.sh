@@ -10,9 +10,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 rustup target add thumbv6m-none-eabi thumbv7em-none-eabihf thumbv8m.main-none-eabihf >/dev/null
 for target in thumbv6m-none-eabi thumbv7em-none-eabihf thumbv8m.main-none-eabihf; do
-  echo "evpose-core for $target: no features, then defmt + geometry"
+  echo "evpose-core for $target: no features, then defmt + geometry + fast-crc"
   cargo check -q -p evpose-core --locked --target "$target" --no-default-features
-  cargo check -q -p evpose-core --locked --target "$target" --features defmt,geometry
+  cargo check -q -p evpose-core --locked --target "$target" --features defmt,geometry,fast-crc
 done
 echo "evpose-core for thumbv8m.main-none-eabihf (Cortex-M33 with DSP): arm-dsp, built"
 RUSTFLAGS="-C target-cpu=cortex-m33" cargo build -q -p evpose-core --locked \
