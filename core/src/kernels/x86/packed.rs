@@ -28,7 +28,7 @@
 //! once per six points), conv5 in blocks of 16 points ran at 495 GMAC/s on this project's Zen 5
 //! VM (`benches/kernels.rs`, `packed/avx512vnni`), 94 % of the 524 GMAC/s
 //! `kernels::peak_loop` measures, but at 52–55 % of the peak on an Intel Xeon (Emerald Rapids)
-//! VM, where passes of four tiles ran 0–9 % faster in a conv5 timing loop (README, "Stop 36");
+//! VM, where passes of four tiles ran 0–9 % faster in a conv5 timing loop (`docs/benchmarks.md`, "Stop 36");
 //! a whole layer per row group (every tile of the call over each group's weights in L1, four-point
 //! tiles) measured about 340 GMAC/s on the Zen 5 (a timing loop, on the same machine while it
 //! was busy).
@@ -40,12 +40,12 @@
 //! the plain kernels store int32 rows that the engine then requantizes to int8 rows and pools.
 //!
 //! On AVX2 and AVX-512BW the whole paper model runs 1.10–1.25× faster packed than row-major
-//! (README, "AVX2 and AVX-512BW packed kernels"). The AVX2 tile is four points: five, with
+//! (`docs/benchmarks.md`, "AVX2 and AVX-512BW packed kernels"). The AVX2 tile is four points: five, with
 //! two registers each plus the four weight registers and two broadcasts, need 17 of the 16
 //! registers, and the compiler then kept every accumulator in memory. Their tiles run in
 //! passes of four too, slice by slice: a slice of a row group's weights (8 KiB of conv5's on
 //! AVX2) is read from L2 or L3 once per pass of 16 points instead of once per tile (about 5 %
-//! of the whole paper model on a Zen 3, README "Stop 37").
+//! of the whole paper model on a Zen 3, `docs/benchmarks.md`, "Stop 37").
 
 use core::arch::x86_64::*;
 
