@@ -260,8 +260,8 @@ impl<R: Read> Aedat2Reader<R> {
                 base,
             };
             match self.sensor {
-                Sensor::Davis(w, h) => d.davis(records, w, h, false)?,
-                Sensor::Dhp19 => d.davis(records, 346, 260, true)?,
+                Sensor::Davis(w, h) => d.davis::<false>(records, w, h)?,
+                Sensor::Dhp19 => d.davis::<true>(records, 346, 260)?,
                 Sensor::Dvs128 => d.dvs128(records)?,
             }
             self.src.consume(n * RECORD_BYTES);
@@ -344,64 +344,139 @@ struct Decoder<'a> {
     base: u64,
 }
 
+/// Why a record's address is refused.
+enum Bad {
+    /// `(x, y)` outside the sensor `(w, h)`.
+    OutOfSensor(u32, u32, (u16, u16)),
+    /// A DHP19 camera id above 3.
+    Camera(u32),
+}
+
+impl Bad {
+    /// The error, for the record at file offset `offset`.
+    fn at(self, offset: u64) -> ReadError {
+        match self {
+            Bad::OutOfSensor(x, y, size) => out_of_sensor(offset, x, y, size),
+            Bad::Camera(c) => ReadError::Corrupt {
+                offset,
+                message: format!("DHP19 camera id {c} (address bits 0-3) is above 3"),
+            },
+        }
+    }
+}
+
+/// A record's address decoded: an event's `(camera, x, y, on)`, or `None` for a record that is
+/// not a polarity event (skipped and counted).
+type Address = Result<Option<(u8, u16, u16, bool)>, Bad>;
+
 impl Decoder<'_> {
-    fn davis(&mut self, records: &[u8], w: u16, h: u16, dhp19: bool) -> Result<(), ReadError> {
-        self.batch.events.reserve(records.len() / RECORD_BYTES);
-        self.batch.cameras.reserve(records.len() / RECORD_BYTES);
-        for (i, r) in records.chunks_exact(RECORD_BYTES).enumerate() {
-            let addr = u32::from_be_bytes([r[0], r[1], r[2], r[3]]);
-            let ts = u32::from_be_bytes([r[4], r[5], r[6], r[7]]);
+    /// DAVIS records (DHP19's with `DHP19`: address bits 0-3 carry the camera).
+    fn davis<const DHP19: bool>(
+        &mut self,
+        records: &[u8],
+        w: u16,
+        h: u16,
+    ) -> Result<(), ReadError> {
+        self.records(records, |addr| {
             if addr & 0x8000_0400 != 0 {
-                self.notes.skipped_records += 1;
-                continue;
+                return Ok(None);
             }
-            let offset = self.base + (i * RECORD_BYTES) as u64;
             let x = (addr >> 12) & 0x3FF;
             let y_raw = (addr >> 22) & 0x1FF;
             if x >= u32::from(w) || y_raw >= u32::from(h) {
-                return Err(out_of_sensor(offset, x, y_raw, (w, h)));
+                return Err(Bad::OutOfSensor(x, y_raw, (w, h)));
             }
-            let camera = if dhp19 {
+            let camera = if DHP19 {
                 let c = addr & 0xF;
                 if c >= u32::from(DHP19_CAMERAS) {
-                    return Err(ReadError::Corrupt {
-                        offset,
-                        message: format!("DHP19 camera id {c} (address bits 0-3) is above 3"),
-                    });
+                    return Err(Bad::Camera(c));
                 }
                 c as u8
             } else {
                 0
             };
-            let t = self
-                .time
-                .unwrap(u64::from(ts))
-                .ok_or_else(|| time_overflow(offset))?;
             let y = h - 1 - y_raw as u16;
-            self.batch
-                .push(camera, Event::new(x as u16, y, t, addr & 0x800 != 0));
-        }
-        Ok(())
+            Ok(Some((camera, x as u16, y, addr & 0x800 != 0)))
+        })
     }
 
+    /// DVS128 records.
     fn dvs128(&mut self, records: &[u8]) -> Result<(), ReadError> {
-        for (i, r) in records.chunks_exact(RECORD_BYTES).enumerate() {
-            let addr = u32::from_be_bytes([r[0], r[1], r[2], r[3]]);
-            let ts = u32::from_be_bytes([r[4], r[5], r[6], r[7]]);
+        self.records(records, |addr| {
             if addr & 0xFFFF_8000 != 0 {
-                self.notes.skipped_records += 1;
-                continue;
+                return Ok(None);
             }
-            let offset = self.base + (i * RECORD_BYTES) as u64;
             let x = 127 - ((addr >> 1) & 0x7F) as u16;
             let y = ((addr >> 8) & 0x7F) as u16;
-            let t = self
-                .time
-                .unwrap(u64::from(ts))
-                .ok_or_else(|| time_overflow(offset))?;
-            self.batch.push(0, Event::new(x, y, t, addr & 1 == 0));
+            Ok(Some((0, x, y, addr & 1 == 0)))
+        })
+    }
+
+    /// Whole records into the batch, each address through `address`, stopping at the first
+    /// refused one (the events before it stay in the batch).
+    ///
+    /// The batch grows once by the records' count and the loop writes events by index (no
+    /// length update per event), then the unused tail is cut off; the timestamps' common case
+    /// (a step forward within the period) runs on a copy of the unwrapper's state in registers
+    /// ([`super::source::Forward`]). 1.8× faster than a push per event and the unwrapper in
+    /// memory (`cargo bench -p evpose-host --bench readers -- aedat2`).
+    #[inline(always)]
+    fn records(
+        &mut self,
+        records: &[u8],
+        address: impl Fn(u32) -> Address,
+    ) -> Result<(), ReadError> {
+        let (records, _) = records.as_chunks::<RECORD_BYTES>();
+        let start = self.batch.len();
+        self.batch
+            .events
+            .resize(start + records.len(), Event::default());
+        self.batch.cameras.resize(start + records.len(), 0);
+        let events = &mut self.batch.events[start..];
+        let cameras = &mut self.batch.cameras[start..];
+        let mut forward = self.time.forward();
+        let (mut k, mut skipped) = (0, 0);
+        let mut result = Ok(());
+        for (i, r) in records.iter().enumerate() {
+            let [a0, a1, a2, a3, t0, t1, t2, t3] = *r;
+            let ts = u64::from(u32::from_be_bytes([t0, t1, t2, t3]));
+            let offset = || self.base + (i * RECORD_BYTES) as u64;
+            let (camera, x, y, on) = match address(u32::from_be_bytes([a0, a1, a2, a3])) {
+                Ok(Some(e)) => e,
+                Ok(None) => {
+                    skipped += 1;
+                    continue;
+                }
+                Err(bad) => {
+                    result = Err(bad.at(offset()));
+                    break;
+                }
+            };
+            let t = match forward.step(ts) {
+                Some(t) => t,
+                None => {
+                    self.time.resume(&forward);
+                    let t = self.time.unwrap(ts);
+                    forward = self.time.forward();
+                    match t {
+                        Some(t) => t,
+                        None => {
+                            result = Err(time_overflow(offset()));
+                            break;
+                        }
+                    }
+                }
+            };
+            if let (Some(e), Some(c)) = (events.get_mut(k), cameras.get_mut(k)) {
+                (*e, *c) = (Event::new(x, y, t, on), camera);
+            }
+            k += 1;
         }
-        Ok(())
+        self.time.resume(&forward);
+        self.notes.skipped_records += skipped;
+        self.batch.events.truncate(start + k);
+        self.batch.cameras.truncate(start + k);
+        result
     }
 }
 

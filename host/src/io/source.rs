@@ -178,6 +178,33 @@ impl Unwrapper {
         self.epoch
     }
 
+    /// The state for a decoding loop's fast path ([`Forward`]), to be handed back with
+    /// [`Unwrapper::resume`] before the next [`Unwrapper::unwrap`].
+    pub(crate) fn forward(&self) -> Forward {
+        let half = 1u64 << (self.bits - 1);
+        // `base + raw` must fit an i64 for every raw value of the period.
+        let base = self.epoch.checked_mul(1u64 << self.bits).filter(|b| {
+            b.checked_add(1u64 << self.bits)
+                .is_some_and(|e| e <= i64::MAX as u64)
+        });
+        match (self.last, base) {
+            (Some(last), Some(base)) => Forward { last, base, half },
+            // Nothing takes the fast path: `raw − last` wraps past `half` for every raw value.
+            _ => Forward {
+                last: u64::MAX,
+                base: 0,
+                half: 0,
+            },
+        }
+    }
+
+    /// Takes back the last value a [`Forward`] accepted.
+    pub(crate) fn resume(&mut self, f: &Forward) {
+        if f.half > 0 {
+            self.last = Some(f.last);
+        }
+    }
+
     /// The unwrapped value of `raw`; `None` when it does not fit an `i64`.
     pub(crate) fn unwrap(&mut self, raw: u64) -> Option<i64> {
         let half = 1u64 << (self.bits - 1);
@@ -195,6 +222,32 @@ impl Unwrapper {
             .checked_mul(1u64 << self.bits)
             .and_then(|base| base.checked_add(raw))
             .and_then(|v| i64::try_from(v).ok())
+    }
+}
+
+/// [`Unwrapper`]'s common case in a few registers: a value at most half a period after the last
+/// one, in the same period, unwraps to `base + raw` (what [`Unwrapper::unwrap`] gives it, with no
+/// wrap and no overflow possible). Everything else is left to the unwrapper.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Forward {
+    last: u64,
+    base: u64,
+    /// Half the period; 0 when the fast path is closed (no last value yet, or a period whose
+    /// values could overflow).
+    half: u64,
+}
+
+impl Forward {
+    /// `raw` unwrapped, if it is a step forward of at most half a period from the last value.
+    #[inline(always)]
+    pub(crate) fn step(&mut self, raw: u64) -> Option<i64> {
+        if raw >= self.last && raw - self.last <= self.half {
+            self.last = raw;
+            // `base + raw` fits an i64 (checked when `base` was set, `raw` below the period).
+            Some((self.base + raw) as i64)
+        } else {
+            None
+        }
     }
 }
 
@@ -309,6 +362,50 @@ mod tests {
         assert_eq!(u.unwrap(254), Some(254), "late value from before the wrap");
         assert_eq!(u.unwrap(10), Some(266));
         assert_eq!(u.unwrap(5), Some(261), "small step back is no wrap");
+    }
+
+    #[test]
+    fn forward_steps_unwrap_like_the_unwrapper() {
+        // Random walks (mostly steps forward, some back, some anywhere) through counters that
+        // wrap often; the 62-bit one overflows an i64 after its second wrap.
+        for bits in [3u32, 8, 32, 62] {
+            let mut s = 0x9E37_79B9_7F4A_7C15u64 ^ u64::from(bits);
+            let mut next = move || {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                s
+            };
+            let period = 1u64 << bits;
+            let (mut plain, mut fast) = (Unwrapper::new(bits), Unwrapper::new(bits));
+            let mut forward = fast.forward();
+            let (mut raw, mut taken) = (0u64, 0);
+            for i in 0..20_000 {
+                let r = next();
+                raw = match r % 16 {
+                    0 => r >> 8,
+                    1 => raw.wrapping_sub((r >> 8) % 4),
+                    _ => raw + (r >> 8) % (period / 8).max(2),
+                } % period;
+                let want = plain.unwrap(raw);
+                let got = match forward.step(raw) {
+                    Some(t) => {
+                        taken += 1;
+                        Some(t)
+                    }
+                    None => {
+                        fast.resume(&forward);
+                        let t = fast.unwrap(raw);
+                        forward = fast.forward();
+                        t
+                    }
+                };
+                assert_eq!(got, want, "bits {bits}, value {i}: {raw}");
+            }
+            fast.resume(&forward);
+            assert_eq!(fast.wraps(), plain.wraps(), "bits {bits}");
+            assert!(taken > 500, "bits {bits}: the fast path took {taken}");
+        }
     }
 
     #[test]
