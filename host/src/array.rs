@@ -5,10 +5,7 @@ use std::io::{self, BufReader, BufWriter, Read};
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
-use npyz::{NpyFile, Order, WriterBuilder};
-
-/// A stream of numbers from an `.npy` file, converted to f64 whatever the stored dtype.
-pub type Values = Box<dyn Iterator<Item = io::Result<f64>> + Send>;
+use npyz::{DType, NpyFile, NpyHeader, Order, WriterBuilder};
 
 /// The longest `.npy` header read, bytes: NumPy's own limit when it loads a file
 /// (`max_header_size`, 10,000). A longer header is refused before anything is allocated for
@@ -41,9 +38,18 @@ fn nesting_depth(header: &[u8]) -> usize {
     max
 }
 
+/// An `.npy` stream after its header.
+type Data<R> = io::Chain<io::Cursor<Vec<u8>>, R>;
+
 /// Opens an `.npy` stream after checking its header: at most [`MAX_HEADER_BYTES`] long and
 /// [`MAX_HEADER_DEPTH`] deep.
-fn open_npy<R: Read>(mut reader: R) -> io::Result<NpyFile<io::Chain<io::Cursor<Vec<u8>>, R>>> {
+fn open_npy<R: Read>(reader: R) -> io::Result<NpyFile<Data<R>>> {
+    let (header, data) = open_header(reader)?;
+    Ok(NpyFile::with_header(header, data))
+}
+
+/// [`open_npy`]'s header and the stream at the first value.
+fn open_header<R: Read>(mut reader: R) -> io::Result<(NpyHeader, Data<R>)> {
     let invalid = |m: String| io::Error::new(io::ErrorKind::InvalidData, m);
     let mut read_up_to = |buf: &mut Vec<u8>, n: usize| -> io::Result<()> {
         let start = buf.len();
@@ -85,40 +91,198 @@ fn open_npy<R: Read>(mut reader: R) -> io::Result<NpyFile<io::Chain<io::Cursor<V
             )));
         }
     }
-    NpyFile::new(io::Cursor::new(pre).chain(reader))
+    let mut data = io::Cursor::new(pre).chain(reader);
+    let header = NpyHeader::from_reader(&mut data)?;
+    Ok((header, data))
 }
 
-/// Opens an `.npy` stream: returns its shape and an iterator over its values in C order.
-pub fn stream_f64<R: Read + Send + 'static>(reader: R) -> io::Result<(Vec<u64>, Values)> {
-    let npy = open_npy(reader)?;
-    if npy.order() == Order::Fortran && npy.shape().len() > 1 {
+/// The numeric element types [`F64Values`] reads: every integer and float width NumPy saves
+/// for plain arrays (`bool`, `float16`, complex and structured dtypes are refused).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Element {
+    F64,
+    F32,
+    I64,
+    I32,
+    I16,
+    I8,
+    U64,
+    U32,
+    U16,
+    U8,
+}
+
+impl Element {
+    /// The element type and byte order (big-endian: `true`) of a plain dtype such as `<f8`,
+    /// `>i4` or `|u1`.
+    fn parse(dtype: &DType) -> Option<(Self, bool)> {
+        let DType::Plain(ty) = dtype else {
+            return None;
+        };
+        let ty = ty.to_string();
+        let (order, code) = ty.split_at_checked(1)?;
+        let big = match order {
+            "<" | "|" | "=" => false,
+            ">" => true,
+            _ => return None,
+        };
+        let e = match code {
+            "f8" => Self::F64,
+            "f4" => Self::F32,
+            "i8" => Self::I64,
+            "i4" => Self::I32,
+            "i2" => Self::I16,
+            "i1" => Self::I8,
+            "u8" => Self::U64,
+            "u4" => Self::U32,
+            "u2" => Self::U16,
+            "u1" => Self::U8,
+            _ => return None,
+        };
+        Some((e, big))
+    }
+
+    /// Bytes per element.
+    fn size(self) -> usize {
+        match self {
+            Self::F64 | Self::I64 | Self::U64 => 8,
+            Self::F32 | Self::I32 | Self::U32 => 4,
+            Self::I16 | Self::U16 => 2,
+            Self::I8 | Self::U8 => 1,
+        }
+    }
+
+    /// `bytes` (whole elements) as f64 into the front of `out`.
+    fn convert(self, big: bool, bytes: &[u8], out: &mut [f64]) {
+        macro_rules! each {
+            ($t:ty, $n:literal) => {{
+                let (elements, _) = bytes.as_chunks::<$n>();
+                let pairs = out.iter_mut().zip(elements);
+                if big {
+                    pairs.for_each(|(o, &b)| *o = <$t>::from_be_bytes(b) as f64);
+                } else {
+                    pairs.for_each(|(o, &b)| *o = <$t>::from_le_bytes(b) as f64);
+                }
+            }};
+        }
+        match self {
+            Self::F64 => each!(f64, 8),
+            Self::F32 => each!(f32, 4),
+            Self::I64 => each!(i64, 8),
+            Self::I32 => each!(i32, 4),
+            Self::I16 => each!(i16, 2),
+            Self::I8 => each!(i8, 1),
+            Self::U64 => each!(u64, 8),
+            Self::U32 => each!(u32, 4),
+            Self::U16 => each!(u16, 2),
+            Self::U8 => each!(u8, 1),
+        }
+    }
+}
+
+/// The values of an `.npy` stream in C order, converted to f64 whatever the stored dtype, read a
+/// block of bytes at a time (no call per value). Also an iterator of `io::Result<f64>`.
+pub struct F64Values {
+    data: Box<dyn Read + Send>,
+    element: Element,
+    big: bool,
+    /// Values the header states that are not yet read.
+    remaining: u64,
+    bytes: Vec<u8>,
+    /// The iterator's block: `block[at..]` not yet yielded.
+    block: Vec<f64>,
+    at: usize,
+}
+
+/// Values per block of [`F64Values`]'s iterator and of [`F64Values::read_all`].
+const BLOCK_VALUES: usize = 4096;
+
+impl F64Values {
+    /// Values the header states that are not yet read.
+    pub fn remaining(&self) -> u64 {
+        self.remaining
+    }
+
+    /// Fills the front of `out` with the next `min(out.len(), remaining)` values; returns how
+    /// many. An `UnexpectedEof` error when the data ends before the header's count.
+    pub fn read(&mut self, out: &mut [f64]) -> io::Result<usize> {
+        let n = out
+            .len()
+            .min(usize::try_from(self.remaining).unwrap_or(usize::MAX));
+        self.bytes.resize(n * self.element.size(), 0);
+        self.data.read_exact(&mut self.bytes)?;
+        self.element.convert(self.big, &self.bytes, &mut out[..n]);
+        self.remaining -= n as u64;
+        Ok(n)
+    }
+
+    /// Every remaining value.
+    pub fn read_all(mut self) -> io::Result<Vec<f64>> {
+        let mut v = Vec::new();
+        while self.remaining > 0 {
+            let at = v.len();
+            v.resize(at + BLOCK_VALUES, 0.0);
+            let n = self.read(&mut v[at..])?;
+            v.truncate(at + n);
+        }
+        Ok(v)
+    }
+}
+
+impl Iterator for F64Values {
+    type Item = io::Result<f64>;
+
+    fn next(&mut self) -> Option<io::Result<f64>> {
+        if self.at == self.block.len() {
+            if self.remaining == 0 {
+                return None;
+            }
+            let mut block = std::mem::take(&mut self.block);
+            block.resize(BLOCK_VALUES, 0.0);
+            match self.read(&mut block) {
+                Ok(n) => block.truncate(n),
+                Err(e) => {
+                    self.remaining = 0;
+                    return Some(Err(e));
+                }
+            }
+            (self.block, self.at) = (block, 0);
+        }
+        let v = self.block.get(self.at).copied();
+        self.at += 1;
+        v.map(Ok)
+    }
+}
+
+/// Opens an `.npy` stream: returns its shape and its values in C order.
+pub fn stream_f64<R: Read + Send + 'static>(reader: R) -> io::Result<(Vec<u64>, F64Values)> {
+    let (header, data) = open_header(reader)?;
+    if header.order() == Order::Fortran && header.shape().len() > 1 {
         return Err(io::Error::new(
             io::ErrorKind::InvalidData,
             "Fortran-order arrays are not supported; save with np.ascontiguousarray",
         ));
     }
-    let shape = npy.shape().to_vec();
-    let dtype = npy.dtype().descr();
-    macro_rules! try_types {
-        ($npy:ident; $($t:ty),*) => {{
-            let npy = $npy;
-            $(
-                let npy = match npy.try_data::<$t>() {
-                    Ok(r) => {
-                        let it: Values = Box::new(r.map(|v| v.map(|v| v as f64)));
-                        return Ok((shape, it));
-                    }
-                    Err(npy) => npy,
-                };
-            )*
-            drop(npy);
-        }};
-    }
-    try_types!(npy; f64, f32, i64, i32, i16, i8, u64, u32, u16, u8);
-    Err(io::Error::new(
-        io::ErrorKind::InvalidData,
-        format!("unsupported npy dtype {dtype}; expected a numeric array"),
-    ))
+    let dtype = header.dtype();
+    let Some((element, big)) = Element::parse(&dtype) else {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidData,
+            format!(
+                "unsupported npy dtype {}; expected a numeric array",
+                dtype.descr()
+            ),
+        ));
+    };
+    let values = F64Values {
+        data: Box::new(data),
+        element,
+        big,
+        remaining: header.len(),
+        bytes: Vec::new(),
+        block: Vec::new(),
+        at: 0,
+    };
+    Ok((header.shape().to_vec(), values))
 }
 
 /// Reads a whole `.npy` file as f64 values with its shape.
@@ -127,7 +291,7 @@ pub fn read_f64(path: &Path) -> Result<(Vec<u64>, Vec<f64>)> {
     let (shape, values) =
         stream_f64(BufReader::new(file)).with_context(|| format!("{}", path.display()))?;
     let data = values
-        .collect::<io::Result<Vec<f64>>>()
+        .read_all()
         .with_context(|| format!("{}: reading values", path.display()))?;
     Ok((shape, data))
 }

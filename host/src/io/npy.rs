@@ -5,15 +5,17 @@ use std::io::Read;
 use evpose_core::Event;
 
 use super::{Batch, EventReader, Format, ReadError, StreamInfo, BATCH_EVENTS};
-use crate::array::{stream_f64, Values};
+use crate::array::{stream_f64, F64Values};
 
 /// Streaming reader of an (N, 4) `.npy` event array.
 pub struct NpyReader<R> {
-    values: Values,
+    values: F64Values,
     _reader: std::marker::PhantomData<fn() -> R>,
     info: StreamInfo,
     rows_read: u64,
     rows: u64,
+    /// A batch's rows, read in one block.
+    rows_buf: Vec<[f64; 4]>,
 }
 
 impl<R: Read + Send + 'static> NpyReader<R> {
@@ -44,38 +46,21 @@ impl<R: Read + Send + 'static> NpyReader<R> {
             },
             rows_read: 0,
             rows,
+            rows_buf: Vec::new(),
         })
-    }
-
-    fn next_row(&mut self) -> Result<[f64; 4], ReadError> {
-        let mut row = [0.0; 4];
-        for v in &mut row {
-            *v = match self.values.next() {
-                Some(Ok(v)) => v,
-                Some(Err(e)) if e.kind() == std::io::ErrorKind::UnexpectedEof => {
-                    return Err(ReadError::Truncated {
-                        offset: 0,
-                        what: "the npy data (fewer rows than the header states)",
-                    })
-                }
-                Some(Err(e)) => return Err(e.into()),
-                None => {
-                    return Err(ReadError::Truncated {
-                        offset: 0,
-                        what: "the npy data (fewer rows than the header states)",
-                    })
-                }
-            };
-        }
-        Ok(row)
     }
 }
 
 /// Converts one `[x, y, t_us, p]` row, rejecting values that are not event fields.
 pub fn event_from_row(row: [f64; 4], index: u64) -> Result<Event, ReadError> {
     let [x, y, t, p] = row;
-    let coord =
-        |v: f64| (v.fract() == 0.0 && (0.0..=f64::from(u16::MAX)).contains(&v)).then_some(v as u16);
+    // An integer in 0..=65535 exactly when the saturating conversion gives it back (NaN, a
+    // fraction or a value out of range does not); no `trunc` call (a library call on x86-64
+    // without SSE4.1).
+    let coord = |v: f64| {
+        let c = v as u16;
+        (f64::from(c) == v).then_some(c)
+    };
     let bad = |what: &str, v: f64| ReadError::Corrupt {
         offset: 0,
         message: format!("row {index}: {what} {v} is not valid"),
@@ -93,7 +78,22 @@ pub fn event_from_row(row: [f64; 4], index: u64) -> Result<Event, ReadError> {
     } else {
         return Err(bad("polarity (expected 0/1 or -1/1)", p));
     };
-    Ok(Event::new(x, y, t.round() as i64, on))
+    Ok(Event::new(x, y, round_half_away(t), on))
+}
+
+/// `t.round() as i64` for `|t| < 2^53` without the library call `round` is on x86-64: the
+/// truncation and the fraction `t − trunc(t)` are exact there, and a fraction of at least one
+/// half (in magnitude) rounds away from zero, as `f64::round` does.
+fn round_half_away(t: f64) -> i64 {
+    let r = t as i64;
+    let f = t - r as f64;
+    if f >= 0.5 {
+        r + 1
+    } else if f <= -0.5 {
+        r - 1
+    } else {
+        r
+    }
 }
 
 impl<R: Read + Send + 'static> EventReader for NpyReader<R> {
@@ -103,11 +103,78 @@ impl<R: Read + Send + 'static> EventReader for NpyReader<R> {
 
     fn read_batch(&mut self, batch: &mut Batch) -> Result<bool, ReadError> {
         batch.clear();
-        while self.rows_read < self.rows && batch.len() < BATCH_EVENTS {
-            let row = self.next_row()?;
-            batch.push(0, event_from_row(row, self.rows_read)?);
+        // A batch's rows in one read (its values converted a block at a time), then each row
+        // checked and converted to an event.
+        let n = (self.rows - self.rows_read).min(BATCH_EVENTS as u64) as usize;
+        self.rows_buf.resize(n, [0.0; 4]);
+        match self.values.read(self.rows_buf.as_flattened_mut()) {
+            Ok(got) if got == 4 * n => {}
+            Err(e) if e.kind() != std::io::ErrorKind::UnexpectedEof => return Err(e.into()),
+            _ => {
+                return Err(ReadError::Truncated {
+                    offset: 0,
+                    what: "the npy data (fewer rows than the header states)",
+                })
+            }
+        }
+        batch.events.reserve(n);
+        let mut result = Ok(());
+        for &row in &self.rows_buf {
+            match event_from_row(row, self.rows_read) {
+                Ok(e) => batch.events.push(e),
+                Err(e) => {
+                    result = Err(e);
+                    break;
+                }
+            }
             self.rows_read += 1;
         }
-        Ok(!batch.is_empty())
+        batch.cameras.resize(batch.events.len(), 0);
+        result.map(|()| !batch.is_empty())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rows_convert_like_the_float_library() {
+        // Coordinates: integers in range pass, anything else is refused, as with `fract` and a
+        // range test; times: `round` (half away from zero) on both sides of every half.
+        let coords = [
+            0.0,
+            -0.0,
+            1.0,
+            345.0,
+            65_535.0,
+            65_536.0,
+            -1.0,
+            0.5,
+            2.25,
+            f64::NAN,
+            f64::INFINITY,
+        ];
+        for c in coords {
+            let want = (c.fract() == 0.0 && (0.0..=65_535.0).contains(&c)).then_some(c as u16);
+            let got = event_from_row([c, 1.0, 0.0, 1.0], 0).ok().map(|e| e.x);
+            assert_eq!(got, want, "x = {c}");
+        }
+        let mut ts = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.5,
+            -1.5,
+            2.5,
+            0.49999999999999994,
+            1e15 + 0.5,
+        ];
+        ts.extend((0..2_000).map(|i| (i as f64 - 1_000.0) * 0.25 + 1e9));
+        ts.extend([9.007_199_254_740_99e15, -9.007_199_254_740_99e15]);
+        for t in ts {
+            assert_eq!(round_half_away(t), t.round() as i64, "t = {t}");
+        }
     }
 }
