@@ -109,7 +109,10 @@ fn exp_low(x: f32) -> (f32, bool) {
     let c = crate::quant::at_most(crate::quant::at_least(x, EXP_MIN_ARG), 88.0);
     let (p, k) = exp_parts(c);
     let e = p * f32::from_bits(((k + 127) as u32) << 23);
-    (if x >= EXP_MIN_ARG { e } else { 0.0 }, x > 88.0 || x.is_nan())
+    (
+        if x >= EXP_MIN_ARG { e } else { 0.0 },
+        x > 88.0 || x.is_nan(),
+    )
 }
 
 /// Softmax terms per block: [`exp_low`] over [`HeadValue::below_fast`], with the exact path
