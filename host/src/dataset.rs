@@ -682,7 +682,7 @@ pub fn build(
     Ok(manifest)
 }
 
-/// A dataset read back (everything but the points, which [`Dataset::points`] reads).
+/// A dataset read back (everything but the points, which [`Dataset::points_range`] reads).
 #[derive(Clone, Debug)]
 pub struct Dataset {
     /// Its directory.

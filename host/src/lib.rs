@@ -11,9 +11,9 @@
 //! | 3-D | [`dhp19`] (calibration), [`triangulate`] (window pairing, 3-D joints) |
 //! | ground truth | [`dataset`] (labelled windows for training), [`eval`] (MPJPE 2-D and 3-D) |
 //! | models | [`model`] (blobs, quantization; ONNX and tract with feature `onnx`), [`inputs`], [`parity`] |
-//! | costs | [`budget`] (MACs, bytes, firmware images), [`latency`] (MCU latency from measured instruction counts), [`bench`] |
+//! | costs | [`budget`] (MACs, bytes, firmware images), [`latency`] (MCU latency from measured instruction counts), [`bench`](mod@bench) |
 //! | pictures | [`render`] (event frames with skeletons) |
-//! | files | [`array`] (`.npy`), [`assets`] (what the binary embeds) |
+//! | files | [`array`](mod@array) (`.npy`), [`assets`] (what the binary embeds) |
 //!
 //! Feature `onnx` (default): ONNX import, the quantized ONNX twin and tract. Without it the
 //! runtime builds without tract.

@@ -24,7 +24,7 @@
 //! order. Packets of other streams are skipped without being decompressed.
 //!
 //! The flatbuffers are read by the small bounds-checked reader below, not generated code:
-//! every offset is checked, so damaged input gives a [`ReadError`], never a panic, and no
+//! every offset is checked, so damaged input gives a [`ReadError`](crate::io::ReadError), never a panic, and no
 //! allocation follows a size field beyond [`MAX_PACKET_BYTES`].
 
 mod flatbuf;

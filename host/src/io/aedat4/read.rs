@@ -220,7 +220,7 @@ pub(super) fn event_vector(plain: &[u8], offset: u64) -> Result<(usize, usize), 
 }
 
 impl<R: Read> Aedat4Reader<R> {
-    /// Parses the magic and the IOHeader; events are read by [`EventReader::read_batch`].
+    /// Parses the magic and the IOHeader; events are read by [`EventReader::read_batch`](crate::io::EventReader::read_batch).
     pub fn new(mut inner: R) -> Result<Self, ReadError> {
         let header = read_header(&mut inner)?;
         let (cameras, streams) = route_streams(&header.streams)?;
