@@ -454,31 +454,45 @@ fn parse_decimal(s: &[u8]) -> Option<Decimal> {
     })
 }
 
+/// `10^k` for `k` in `0..=19`, every power of ten a `u64` holds.
+const POW10: [u64; 20] = {
+    let mut p = [1u64; 20];
+    let mut k = 1;
+    while k < 20 {
+        p[k] = p[k - 1] * 10;
+        k += 1;
+    }
+    p
+};
+
 impl Decimal {
     /// The value × 10^`shift` as an integer, rounded half away from zero; `None` when it
     /// overflows an `i64`, or when `exact` and rounding was needed.
+    ///
+    /// `digits` is below 10^19 (at most 19 significant digits are kept), so it and every power
+    /// of ten up to 10^19 fit a `u64`: the product is one 64 × 64-bit multiply and the quotient
+    /// one 64-bit division (a `u128` division is a library call, and it took a third of the
+    /// text reader's time); a power beyond that makes the value overflow or round to 0.
     fn scaled(self, shift: i32, exact: bool) -> Option<i64> {
         let e = self.exponent.checked_add(shift)?;
+        let k = e.unsigned_abs() as usize;
         let magnitude: u128 = if self.digits == 0 {
             0
         } else if e >= 0 {
-            let p = 10u128.checked_pow(u32::try_from(e).ok()?)?;
-            u128::from(self.digits).checked_mul(p)?
-        } else {
-            let k = e.unsigned_abs();
-            if k > 38 {
-                if exact {
-                    return None;
-                }
-                0
-            } else {
-                let p = 10u128.pow(k);
-                let (q, r) = (u128::from(self.digits) / p, u128::from(self.digits) % p);
-                if exact && r != 0 {
-                    return None;
-                }
-                q + u128::from(2 * r >= p)
+            // `digits ≥ 1` times more than 10^19 overflows an i64.
+            u128::from(self.digits) * u128::from(*POW10.get(k)?)
+        } else if let Some(&p) = POW10.get(k) {
+            let (q, r) = (self.digits / p, self.digits % p);
+            if exact && r != 0 {
+                return None;
             }
+            u128::from(q) + u128::from(u128::from(r) * 2 >= u128::from(p))
+        } else {
+            // 10^k > 10^19 > digits: the value is below one half.
+            if exact {
+                return None;
+            }
+            0
         };
         let m = i128::try_from(magnitude).ok()?;
         i64::try_from(if self.negative { -m } else { m }).ok()
@@ -648,6 +662,72 @@ mod tests {
             dec("123456789012345678901234").and_then(|d| d.scaled(0, false)),
             None
         );
+    }
+
+    /// [`Decimal::scaled`] as it was, in 128-bit arithmetic throughout.
+    fn scaled_u128(d: Decimal, shift: i32, exact: bool) -> Option<i64> {
+        let e = d.exponent.checked_add(shift)?;
+        let magnitude: u128 = if d.digits == 0 {
+            0
+        } else if e >= 0 {
+            let p = 10u128.checked_pow(u32::try_from(e).ok()?)?;
+            u128::from(d.digits).checked_mul(p)?
+        } else {
+            let k = e.unsigned_abs();
+            if k > 38 {
+                if exact {
+                    return None;
+                }
+                0
+            } else {
+                let p = 10u128.pow(k);
+                let (q, r) = (u128::from(d.digits) / p, u128::from(d.digits) % p);
+                if exact && r != 0 {
+                    return None;
+                }
+                q + u128::from(2 * r >= p)
+            }
+        };
+        let m = i128::try_from(magnitude).ok()?;
+        i64::try_from(if d.negative { -m } else { m }).ok()
+    }
+
+    #[test]
+    fn scaling_in_64_bits_matches_128() {
+        // Digits of every length up to 19 (powers of ten, their neighbours, halves, random),
+        // exponents from -45 to 45, both signs, exact or rounded.
+        let mut s = 0x9E37_79B9_7F4A_7C15u64;
+        let mut digits = vec![0u64, 1, 5, 9_999_999_999_999_999_999];
+        for k in 0..19 {
+            let p = 10u64.pow(k);
+            digits.extend([p, p - 1, p + 1, p / 2, 5 * p, 5 * p - 1]);
+        }
+        for _ in 0..500 {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            digits.push(s % 10_000_000_000_000_000_000);
+        }
+        for &digits in &digits {
+            for exponent in -45..=45 {
+                for negative in [false, true] {
+                    let d = Decimal {
+                        negative,
+                        digits,
+                        exponent,
+                    };
+                    for (shift, exact) in
+                        [(0, true), (0, false), (6, false), (6, true), (-3, false)]
+                    {
+                        assert_eq!(
+                            d.scaled(shift, exact),
+                            scaled_u128(d, shift, exact),
+                            "{d:?} {shift}"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     #[test]
