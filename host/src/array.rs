@@ -181,7 +181,7 @@ impl Element {
 }
 
 /// The values of an `.npy` stream in C order, converted to f64 whatever the stored dtype, read a
-/// block of bytes at a time (no call per value). Also an iterator of `io::Result<f64>`.
+/// block of bytes at a time (no call per value).
 pub struct F64Values {
     data: Box<dyn Read + Send>,
     element: Element,
@@ -189,20 +189,12 @@ pub struct F64Values {
     /// Values the header states that are not yet read.
     remaining: u64,
     bytes: Vec<u8>,
-    /// The iterator's block: `block[at..]` not yet yielded.
-    block: Vec<f64>,
-    at: usize,
 }
 
-/// Values per block of [`F64Values`]'s iterator and of [`F64Values::read_all`].
+/// Values per block of [`F64Values::read_all`].
 const BLOCK_VALUES: usize = 4096;
 
 impl F64Values {
-    /// Values the header states that are not yet read.
-    pub fn remaining(&self) -> u64 {
-        self.remaining
-    }
-
     /// Fills the front of `out` with the next `min(out.len(), remaining)` values; returns how
     /// many. An `UnexpectedEof` error when the data ends before the header's count.
     pub fn read(&mut self, out: &mut [f64]) -> io::Result<usize> {
@@ -226,31 +218,6 @@ impl F64Values {
             v.truncate(at + n);
         }
         Ok(v)
-    }
-}
-
-impl Iterator for F64Values {
-    type Item = io::Result<f64>;
-
-    fn next(&mut self) -> Option<io::Result<f64>> {
-        if self.at == self.block.len() {
-            if self.remaining == 0 {
-                return None;
-            }
-            let mut block = std::mem::take(&mut self.block);
-            block.resize(BLOCK_VALUES, 0.0);
-            match self.read(&mut block) {
-                Ok(n) => block.truncate(n),
-                Err(e) => {
-                    self.remaining = 0;
-                    return Some(Err(e));
-                }
-            }
-            (self.block, self.at) = (block, 0);
-        }
-        let v = self.block.get(self.at).copied();
-        self.at += 1;
-        v.map(Ok)
     }
 }
 
@@ -279,8 +246,6 @@ pub fn stream_f64<R: Read + Send + 'static>(reader: R) -> io::Result<(Vec<u64>, 
         big,
         remaining: header.len(),
         bytes: Vec::new(),
-        block: Vec::new(),
-        at: 0,
     };
     Ok((header.shape().to_vec(), values))
 }

@@ -64,7 +64,7 @@ pub fn bundled_camera(channel: u8) -> Result<Camera> {
             .find(|(name, _)| *name == file)
             .context("not a bundled calibration file")?;
         let (shape, values) = array::stream_f64(bytes)?;
-        let data = values.collect::<std::io::Result<Vec<f64>>>()?;
+        let data = values.read_all()?;
         Ok((format!("bundled {file}"), shape, data))
     })
 }

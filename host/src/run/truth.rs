@@ -41,7 +41,7 @@ impl Truth {
     /// Ground truth from `.gt.npy` bytes (sample 0 at t = 0).
     pub fn from_npy_bytes(bytes: &'static [u8]) -> Result<Self> {
         let (shape, values) = crate::array::stream_f64(bytes)?;
-        let v = values.collect::<std::io::Result<Vec<f64>>>()?;
+        let v = values.read_all()?;
         Ok(Self {
             poses: crate::simulate::gt_from_array(&shape, &v)?,
             t0_us: Some(0),
