@@ -39,3 +39,15 @@ pub mod run;
 pub mod simulate;
 pub mod summary;
 pub mod triangulate;
+
+/// A seeded xorshift64 stream of `u64`s, for unit tests' inputs.
+#[cfg(test)]
+pub(crate) fn test_rng(seed: u64) -> impl FnMut() -> u64 {
+    let mut s = seed | 1;
+    move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        s
+    }
+}

@@ -81,7 +81,7 @@ pub fn event_from_row(row: [f64; 4], index: u64) -> Result<Event, ReadError> {
     Ok(Event::new(x, y, round_half_away(t), on))
 }
 
-/// `t.round() as i64` for `|t| < 2^53` without the library call `round` is on x86-64: the
+/// `t.round() as i64` for `|t| < 2^53`, without the library call that `round` is on x86-64: the
 /// truncation and the fraction `t − trunc(t)` are exact there, and a fraction of at least one
 /// half (in magnitude) rounds away from zero, as `f64::round` does.
 fn round_half_away(t: f64) -> i64 {
