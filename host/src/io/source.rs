@@ -178,8 +178,8 @@ impl Unwrapper {
         self.epoch
     }
 
-    /// The state for a decoding loop's fast path ([`Forward`]), to be handed back with
-    /// [`Unwrapper::resume`] before the next [`Unwrapper::unwrap`].
+    /// The state for a decoding loop's fast path ([`Forward`]), handed back with
+    /// [`Unwrapper::resume`] when the loop ends.
     pub(crate) fn forward(&self) -> Forward {
         let half = 1u64 << (self.bits - 1);
         // `base + raw` must fit an i64 for every raw value of the period.
@@ -227,7 +227,8 @@ impl Unwrapper {
 
 /// [`Unwrapper`]'s common case in a few registers: a value at most half a period after the last
 /// one, in the same period, unwraps to `base + raw` (what [`Unwrapper::unwrap`] gives it, with no
-/// wrap and no overflow possible). Everything else is left to the unwrapper.
+/// wrap and no overflow possible). Everything else goes to the unwrapper ([`Forward::unwrap`]).
+/// (Taking small steps back too, which unwrap the same way, measured 7–16 % slower on AEDAT 2.0.)
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Forward {
     last: u64,
@@ -240,7 +241,7 @@ pub(crate) struct Forward {
 impl Forward {
     /// `raw` unwrapped, if it is a step forward of at most half a period from the last value.
     #[inline(always)]
-    pub(crate) fn step(&mut self, raw: u64) -> Option<i64> {
+    fn step(&mut self, raw: u64) -> Option<i64> {
         if raw >= self.last && raw - self.last <= self.half {
             self.last = raw;
             // `base + raw` fits an i64 (checked when `base` was set, `raw` below the period).
@@ -248,6 +249,26 @@ impl Forward {
         } else {
             None
         }
+    }
+
+    /// `raw` unwrapped as `time.unwrap(raw)` unwraps it: by [`Forward::step`] where it can, else
+    /// by `time` itself (given this state first, and this state taken from it after).
+    #[inline(always)]
+    pub(crate) fn unwrap(&mut self, time: &mut Unwrapper, raw: u64) -> Option<i64> {
+        match self.step(raw) {
+            Some(t) => Some(t),
+            None => self.by_unwrapper(time, raw),
+        }
+    }
+
+    /// [`Forward::unwrap`]'s rare case, out of the decoding loop.
+    #[cold]
+    #[inline(never)]
+    fn by_unwrapper(&mut self, time: &mut Unwrapper, raw: u64) -> Option<i64> {
+        time.resume(self);
+        let t = time.unwrap(raw);
+        *self = time.forward();
+        t
     }
 }
 
@@ -369,17 +390,11 @@ mod tests {
         // Random walks (mostly steps forward, some back, some anywhere) through counters that
         // wrap often; the 62-bit one overflows an i64 after its second wrap.
         for bits in [3u32, 8, 32, 62] {
-            let mut s = 0x9E37_79B9_7F4A_7C15u64 ^ u64::from(bits);
-            let mut next = move || {
-                s ^= s << 13;
-                s ^= s >> 7;
-                s ^= s << 17;
-                s
-            };
             let period = 1u64 << bits;
             let (mut plain, mut fast) = (Unwrapper::new(bits), Unwrapper::new(bits));
             let mut forward = fast.forward();
             let (mut raw, mut taken) = (0u64, 0);
+            let mut next = crate::test_rng(0x9E37_79B9_7F4A_7C15 ^ u64::from(bits));
             for i in 0..20_000 {
                 let r = next();
                 raw = match r % 16 {
@@ -387,20 +402,14 @@ mod tests {
                     1 => raw.wrapping_sub((r >> 8) % 4),
                     _ => raw + (r >> 8) % (period / 8).max(2),
                 } % period;
+                let mut probe = forward;
+                taken += usize::from(probe.step(raw).is_some());
                 let want = plain.unwrap(raw);
-                let got = match forward.step(raw) {
-                    Some(t) => {
-                        taken += 1;
-                        Some(t)
-                    }
-                    None => {
-                        fast.resume(&forward);
-                        let t = fast.unwrap(raw);
-                        forward = fast.forward();
-                        t
-                    }
-                };
-                assert_eq!(got, want, "bits {bits}, value {i}: {raw}");
+                assert_eq!(
+                    forward.unwrap(&mut fast, raw),
+                    want,
+                    "bits {bits}, value {i}: {raw}"
+                );
             }
             fast.resume(&forward);
             assert_eq!(fast.wraps(), plain.wraps(), "bits {bits}");
