@@ -129,8 +129,7 @@ const BLOCKED_TERMS: bool = cfg!(any(target_arch = "x86_64", target_arch = "aarc
 /// `(all, near)` plus the softmax terms `exp(v.below(peak, scale))` of `values`, added one at a
 /// time in order (`near` too, with `window`). With [`BLOCKED_TERMS`] the terms come a block at
 /// a time from branch-free code (vectorized; the same bits, [`exp_low`]) before the in-order
-/// sums: a third of the time on the host (perf over `evpose bench pipeline`: 11.3 % of a run
-/// before, 4.4 % after).
+/// sums (perf over `evpose bench pipeline`: 11.3 % of a run before, 4.4 % after).
 #[inline(always)]
 fn add_terms<T: HeadValue>(
     values: &[T],
@@ -449,13 +448,9 @@ mod tests {
         // Lengths across several blocks, peaks near either end and across block edges, logits
         // whose terms underflow, and int8 accumulators whose differences overflow i32 (the
         // exact path) or come close.
-        let mut s = 0x2545_F491_4F6C_DD1Du64;
-        let mut next = move || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            s
-        };
+        use rand_core::RngCore;
+        let mut rng = crate::sample::rng_from_seed(0x2545_F491_4F6C_DD1D);
+        let mut next = move || rng.next_u64();
         for len in [1usize, 17, 31, 32, 33, 64, 100, 346] {
             for at in [0, len / 3, len / 2, len - 1] {
                 let acc: Vec<i32> = (0..len)
