@@ -52,7 +52,7 @@ fn street_windows_match_the_reference_rasterization() {
 #[test]
 fn windowed_rasterization_of_the_concatenated_stream_gives_the_same_windows() {
     // All ten windows in one event file, cut back into 7,500-event windows by the CLI path.
-    let dir = tempfile_dir();
+    let dir = scratch_dir();
     let mut all = Vec::new();
     for name in street_windows() {
         let (_, v) = array::read_f64(&fixtures().join(format!("{name}.events.npy"))).unwrap();
@@ -82,8 +82,10 @@ fn windowed_rasterization_of_the_concatenated_stream_gives_the_same_windows() {
     }
 }
 
-fn tempfile_dir() -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("evpose-parity-{}", std::process::id()));
+/// Cargo's scratch directory for integration tests (`target/tmp`): each run overwrites the
+/// last one's file.
+fn scratch_dir() -> std::path::PathBuf {
+    let d = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("evpose-parity");
     std::fs::create_dir_all(&d).unwrap();
     d
 }

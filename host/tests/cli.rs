@@ -34,8 +34,11 @@ fn fixture(name: &str) -> PathBuf {
         .join(name)
 }
 
+/// A path for a test's output file: in Cargo's scratch directory for integration tests
+/// (`target/tmp`), so that each run overwrites the last one's files instead of leaving a new
+/// directory in the system's temporary directory.
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("evpose-cli-{}", std::process::id()));
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join("evpose-cli");
     std::fs::create_dir_all(&d).unwrap();
     d.join(name)
 }
