@@ -590,6 +590,39 @@ fn vnni_correction(x: &[i8]) -> i32 {
         .wrapping_mul(128)
 }
 
+/// [`vnni_correction`] of `out.len()` points: rows `first..` of `x`, `x_stride` apart, `k`
+/// inputs each. Four rows at a time, 32 inputs per step: `Σ x = Σ (x ⊕ 0x80) − 128·n`, the
+/// unsigned sums by `vpsadbw`, the four rows' vectors reduced together. Where
+/// [`vnni_correction`] (sign-extended to i32 lanes, one reduction per point) took about 45
+/// instructions per point at 64 inputs, 17 % of a 64 → 64 layer's kernel time (perf, Zen 5).
+#[inline]
+#[target_feature(enable = "avx2")]
+fn vnni_corrections(x: &[i8], x_stride: usize, first: usize, k: usize, out: &mut [i32]) {
+    let (flip, zero) = (_mm256_set1_epi8(i8::MIN), _mm256_setzero_si256());
+    // `128 · n` of the vector steps' `n` inputs, wrapping (the truncation is modulo 2^32 too).
+    let offset = ((k / 32 * 32) as i32).wrapping_mul(128);
+    for (j, out) in out.chunks_mut(4).enumerate() {
+        let (mut acc, mut tail) = ([zero; 4], [0i32; 4]);
+        for (q, (a, t)) in acc.iter_mut().zip(&mut tail).enumerate().take(out.len()) {
+            let row = &x[(first + 4 * j + q) * x_stride..][..k];
+            let (steps, rest) = row.as_chunks::<32>();
+            for s in steps {
+                // Each i64 lane's sum of eight bytes (at most 2,040) sits in its low i32; i32
+                // adds keep those sums modulo 2^32 and the high i32 at zero.
+                let u = _mm256_xor_si256(ld256_i8(s), flip);
+                *a = _mm256_add_epi32(*a, _mm256_sad_epu8(u, zero));
+            }
+            *t = rest.iter().fold(0i32, |s, &v| s.wrapping_add(i32::from(v)));
+        }
+        let mut sums = [0i32; 4];
+        // SAFETY: `sums` is 16 writable bytes; `storeu` has no alignment requirement.
+        unsafe { _mm_storeu_si128(sums.as_mut_ptr().cast(), hsum4_256(acc)) };
+        for (o, (&s, &t)) in out.iter_mut().zip(sums.iter().zip(&tail)) {
+            *o = s.wrapping_sub(offset).wrapping_add(t).wrapping_mul(128);
+        }
+    }
+}
+
 // The int8 steps of each kernel family, shared by the matvec and matmat kernels.
 
 /// AVX2: 16 bytes sign-extended to i16.

@@ -59,7 +59,7 @@ use core::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
 
 use core::ops::Range;
 
-use super::vnni_correction;
+use super::vnni_corrections;
 use super::{matmat_packed_i8_avx512vnni, matmat_packed_pool_i8_avx512vnni};
 use crate::kernels::packed::{call_dims, pool_dims, PackedI8, GROUP_ROWS};
 use crate::quant::{requantize_wide, Requant};
@@ -375,9 +375,8 @@ unsafe fn tiles<E: Epilogue>(
         // Before the tiles are configured, per block: the tile state does not survive calls
         // (the x86-64 psABI), and this loop may call out.
         let mut corr = [0i32; BLOCK_POINTS];
-        for (i, c) in corr.iter_mut().enumerate().take(m) {
-            *c = vnni_correction(&x[(p0 + i) * x_stride..][..k]);
-        }
+        // SAFETY: AMX's CPUs have AVX2 ([`matmat_packed_i8_amx`]'s features).
+        unsafe { vnni_corrections(x, x_stride, p0, k, &mut corr[..m]) };
         // The slice whose sums wait in `sums[pending.0]`: its first output and width.
         let mut pending: Option<(usize, usize, usize)> = None;
         // Points of the pending epilogue per chunk: all of them over the chunk loop.

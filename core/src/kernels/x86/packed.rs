@@ -50,7 +50,7 @@
 use core::arch::x86_64::*;
 
 // The row-major kernels' `vpmaddwd` + add stand in for `vpdpwssd` (the same wrapping sums).
-use super::{avx2_mac_i16, avx512bw_mac_i16, ld256_i8, ld256m_i32, ld512m_i32, vnni_correction};
+use super::{avx2_mac_i16, avx512bw_mac_i16, ld256_i8, ld256m_i32, ld512m_i32, vnni_corrections};
 use crate::kernels::packed::{
     call_dims, pool_dims, Block, Lane, Packed, PackedI16, PackedI8, GROUP_ROWS,
 };
@@ -78,20 +78,26 @@ const SUPER: usize = 4;
 
 /// What the loop needs to know of a weight type beyond its [`Lane`] layout.
 trait Vnni: Lane {
-    /// What to subtract from each of a point's sums: `128·Σx` for int8 (the weights' offset),
-    /// 0 for int16.
-    fn correction(x: &[Self]) -> i32;
+    /// What to subtract from each point's sums, for `out.len()` points (rows `first..` of `x`,
+    /// `x_stride` apart, `k` inputs each): `128·Σx` for int8 (the weights' offset), 0 for
+    /// int16.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    unsafe fn corrections(x: &[Self], x_stride: usize, first: usize, k: usize, out: &mut [i32]);
 }
 
 impl Vnni for i8 {
-    fn correction(x: &[i8]) -> i32 {
-        vnni_correction(x)
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn corrections(x: &[i8], x_stride: usize, first: usize, k: usize, out: &mut [i32]) {
+        vnni_corrections(x, x_stride, first, k, out)
     }
 }
 
 impl Vnni for i16 {
-    fn correction(_: &[i16]) -> i32 {
-        0
+    unsafe fn corrections(_: &[i16], _: usize, _: usize, _: usize, out: &mut [i32]) {
+        out.fill(0);
     }
 }
 
@@ -237,9 +243,8 @@ macro_rules! packed_loop {
                 while first < points {
                     let sm = (points - first).min(SUPER * TILE_POINTS);
                     let mut corr = [0i32; SUPER * TILE_POINTS];
-                    for (c, p) in corr.iter_mut().zip(first..first + sm) {
-                        *c = T::correction(&x[p * x_stride..][..k]);
-                    }
+                    // SAFETY: every width's features include AVX2.
+                    unsafe { T::corrections(x, x_stride, first, k, &mut corr[..sm]) };
                     for g in 0..rows.div_ceil(GROUP_ROWS) {
                         let row0 = g * GROUP_ROWS;
                         let tile = Tile {
@@ -713,9 +718,7 @@ macro_rules! widened_i8 {
                     // A pass: up to `PASS` tiles of points.
                     let m = (points - first).min(POINTS * PASS);
                     let mut corr = [0i32; POINTS * PASS];
-                    for (c, p) in corr.iter_mut().zip(first..first + m) {
-                        *c = vnni_correction(&x[p * x_stride..][..k]);
-                    }
+                    vnni_corrections(x, x_stride, first, k, &mut corr[..m]);
                     let mut s0 = 0;
                     while s0 < steps {
                         let n = (steps - s0).min(C);
