@@ -14,8 +14,8 @@ use core::fmt;
 
 use crate::kernels::arm::{matmat_widened_i8, widen_i8, widened_row_words};
 use crate::kernels::packed::{packed_len_of, Lane, Packed, PackedI16, PackedI8};
-use crate::kernels::Kernels;
 use crate::kernels::MatmatWidenedI8;
+use crate::kernels::{Kernels, PointRows};
 use crate::model::{Bias, DType, Layer, LayerKind, Model, Weights, FEATURES, MAX_POINT_LAYERS};
 use crate::quant::{self, InputCoding, Requant};
 
@@ -510,20 +510,25 @@ impl<'m> Plan<'m> {
                 for r0 in (0..out_dim).step_by(tile) {
                     let rows = r0..(r0 + tile).min(out_dim);
                     let (w, b) = (&w[rows.start * k_in..rows.end * k_in], &b[rows.clone()]);
+                    if l.desc.sources != 1 {
+                        // Earlier layers' outputs, before this layer's own in each row: the
+                        // block's points at once, several sharing each weight load.
+                        let at = PointRows {
+                            stride: acts_len,
+                            points: n,
+                            x: source_range(l.desc.sources, offs),
+                            out: offs[i] + rows.start,
+                        };
+                        k.matmat_f32(w, b, acts, &at);
+                        continue;
+                    }
                     for (input, act) in inputs
                         .chunks_exact(FEATURES)
                         .zip(acts.chunks_exact_mut(acts_len))
                         .take(n)
                     {
-                        // A layer reads the input features or earlier layers' outputs (before
-                        // its own in the row).
-                        let (before, after) = act.split_at_mut(offs[i]);
-                        let x: &[f32] = if l.desc.sources == 1 {
-                            input
-                        } else {
-                            &before[source_range(l.desc.sources, offs)]
-                        };
-                        k.matvec_f32(w, x, b, &mut after[rows.clone()]);
+                        // The input features (five, too few to share a weight load).
+                        k.matvec_f32(w, input, b, &mut act[offs[i]..][rows.clone()]);
                     }
                 }
                 for act in acts.chunks_exact_mut(acts_len).take(n) {

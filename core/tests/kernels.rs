@@ -1351,6 +1351,124 @@ fn f32_model_shapes() {
     }
 }
 
+/// A block of `points` rows of `stride` values for [`kernels::PointRows`]: the inputs at
+/// `x0..x0 + k`, the outputs at `out`, marker values everywhere else.
+fn f32_block(
+    vals: &[f32],
+    points: usize,
+    stride: usize,
+    x0: usize,
+    k: usize,
+) -> (Vec<f32>, kernels::PointRows) {
+    const MARK: f32 = -7.25;
+    let mut rows = vec![MARK; points * stride];
+    for (p, row) in rows.chunks_mut(stride).enumerate() {
+        for (j, v) in row.iter_mut().enumerate().skip(x0).take(k) {
+            *v = vals[(p * 31 + j) % vals.len()];
+        }
+    }
+    let at = kernels::PointRows {
+        stride,
+        points,
+        x: x0..x0 + k,
+        out: x0 + k,
+    };
+    (rows, at)
+}
+
+/// Every table's `matmat_f32` against the reference's, bit for bit over the whole block
+/// (outputs and everything it must leave alone), and the reference against `matvec_f32`
+/// point by point.
+fn check_matmat_f32(w: &[f32], bias: &[f32], rows: &[f32], at: &kernels::PointRows) {
+    let mut want = rows.to_vec();
+    reference::matmat_f32(w, bias, &mut want, at);
+    let (k, o, points) = at.dims(w.len(), bias.len(), rows.len());
+    for (p, (row, got)) in rows
+        .chunks(at.stride)
+        .zip(want.chunks(at.stride))
+        .enumerate()
+    {
+        let mut alone = row.to_vec();
+        if p < points && o > 0 {
+            let x = &row[at.x.clone()];
+            reference::matvec_f32(&w[..o * k], x, &bias[..o], &mut alone[at.out..][..o]);
+        }
+        assert_eq!(bits(got), bits(&alone), "point {p}");
+    }
+    for kern in with_reference_table() {
+        let mut got = rows.to_vec();
+        kern.matmat_f32(w, bias, &mut got, at);
+        assert_eq!(bits(&got), bits(&want), "{}: {at:?}", kern.name());
+    }
+}
+
+proptest! {
+    #![proptest_config(cases(256))]
+
+    #[test]
+    fn f32_matmat_matches_reference_bits(
+        (w, x, b, n) in shape_f32(0..150),
+        points in 0usize..11,
+        x0 in 0usize..3,
+        pad in 0usize..3,
+        short in 0usize..2,
+    ) {
+        // The weights' rows as `shape_f32` made them (at most `n` outputs per point), the
+        // inputs' values spread over the block's points.
+        let k = x.len();
+        let o = kernels::rows(k, w.len(), b.len(), n);
+        let stride = x0 + k + o + pad;
+        let vals = if x.is_empty() { vec![1.5] } else { x };
+        let (mut rows, at) = f32_block(&vals, points, stride, x0, k);
+        // A last row cut short: that point is skipped when its outputs do not fit.
+        let cut = rows.len().saturating_sub(short * (pad + 1));
+        rows.truncate(cut);
+        check_matmat_f32(&w, &b, &rows, &at);
+    }
+}
+
+#[test]
+fn f32_matmat_model_shapes_and_refusals() {
+    // The paper model's point layers that read earlier layers (K, rows), with point counts
+    // around the four-point tiles, and blocks the kernels must leave alone.
+    for (k, o) in [
+        (64, 64),
+        (64, 128),
+        (128, 256),
+        (512, 24),
+        (48, 6),
+        (17, 5),
+        (0, 3),
+    ] {
+        let w: Vec<f32> = (0..k * o)
+            .map(|i| ((i * 7919 % 2001) as f32 - 1000.0) / 997.0)
+            .collect();
+        let mut b: Vec<f32> = (0..o).map(|i| i as f32 * 0.25 - 3.0).collect();
+        b[0] = -0.0;
+        let vals: Vec<f32> = (0..401).map(|i| (i as f32 - 200.0) / 50.0).collect();
+        for points in [1, 3, 4, 5, 8, 9] {
+            let (rows, at) = f32_block(&vals, points, 1 + k + o, 1, k);
+            check_matmat_f32(&w, &b, &rows, &at);
+            // Outputs overlapping the inputs, or past the stride: nothing written.
+            for bad in [
+                kernels::PointRows {
+                    out: at.x.end.saturating_sub(1),
+                    ..at.clone()
+                },
+                kernels::PointRows {
+                    stride: at.stride - 1,
+                    ..at.clone()
+                },
+            ] {
+                if k > 0 || bad.stride < at.stride {
+                    assert_eq!(bad.dims(w.len(), b.len(), rows.len()), (0, 0, 0), "{bad:?}");
+                    check_matmat_f32(&w, &b, &rows, &bad);
+                }
+            }
+        }
+    }
+}
+
 // Requantization and pooling, the engine's loops between kernels.
 
 proptest! {

@@ -88,9 +88,14 @@ pub mod reference;
 pub mod x86;
 
 pub use packed::{MatmatPackedI16, MatmatPackedI8, MatmatPackedPoolI8, PackedI16, PackedI8};
+pub use reference::PointRows;
 
 /// The f32 kernel signature: `(w, x, bias, out)`, see [`reference::matvec_f32`].
 pub type MatvecF32 = fn(&[f32], &[f32], &[f32], &mut [f32]);
+
+/// The f32 matrix-matrix kernel signature: `(w, bias, rows, at)`, see
+/// [`reference::matmat_f32`].
+pub type MatmatF32 = fn(&[f32], &[f32], &mut [f32], &PointRows);
 
 /// The int8 kernel signature: `(w, x, bias, out)`.
 pub type MatvecI8 = fn(&[i8], &[i8], &[i32], &mut [i32]);
@@ -417,6 +422,19 @@ impl Kernels {
             return f(w, x, bias, out);
         }
         reference::matvec_f32(w, x, bias, out)
+    }
+
+    /// [`reference::matmat_f32`], bit-exact (so [`Kernels::matvec_f32`] for each point): the
+    /// f32 engine's point layers, a block of points at a time. The AVX-512 tables run
+    /// register tiles of four rows by four points ([`x86::matmat_f32_avx512`]); the others
+    /// run [`Kernels::matvec_f32`] point by point.
+    #[inline]
+    pub fn matmat_f32(&self, w: &[f32], bias: &[f32], rows: &mut [f32], at: &PointRows) {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(f) = x86::f32_matmat_kernel(self) {
+            return f(w, bias, rows, at);
+        }
+        reference::matmat_f32_by(|w, x, b, y| self.matvec_f32(w, x, b, y), w, bias, rows, at)
     }
 
     /// Whether this table has native kernels for [packed](mod@packed) weights, int8 and int16

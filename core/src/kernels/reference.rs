@@ -99,11 +99,7 @@ fn accumulate(acc: &mut [f32; F32_LANES], w: &[f32; F32_LANES], x: &[f32; F32_LA
 /// index order, and the bias.
 #[inline(always)]
 fn finish_row(acc: [f32; F32_LANES], w_tail: &[f32], x_tail: &[f32], b: f32) -> f32 {
-    let tail = w_tail
-        .iter()
-        .zip(x_tail)
-        .fold(0.0, |acc, (&w, &x)| acc + w * x);
-    sum_lanes(acc) + tail + b
+    finish_lanes(sum_lanes(acc), w_tail, x_tail, b)
 }
 
 /// f32 version: `out[o] = Σ_j w[o·K + j] · x[j] + bias[o]` for the rows the three slices share
@@ -157,6 +153,85 @@ pub fn matvec_f32(w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]) {
         }
         *o = finish_row(acc, w_tail, x_tail, b);
     }
+}
+
+/// The rows of a block of points that [`matmat_f32`] reads and writes: point `p`'s row is
+/// `rows[p·stride..][..stride]`, its inputs `x` (a range of the row) and its outputs the `O`
+/// values from `out` (`O` the rows of the weights and bias). The f32 engine's layout: each
+/// point's activations in one row, a layer reading earlier layers' outputs.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PointRows {
+    /// Distance between two points' rows, in values.
+    pub stride: usize,
+    /// Points in the block.
+    pub points: usize,
+    /// Where in a row the inputs are.
+    pub x: core::ops::Range<usize>,
+    /// Where in a row the outputs go (after the inputs).
+    pub out: usize,
+}
+
+impl PointRows {
+    /// `(K, O, P)`: the inputs per point, the outputs [`matmat_f32`] writes per point (`O =
+    /// min(bias.len(), w_len / K)`, `bias.len()` for `K = 0`) and the points it computes
+    /// (those whose row holds the outputs); all 0 unless the inputs end before the outputs
+    /// start and the outputs end within the stride.
+    pub fn dims(&self, w_len: usize, bias_len: usize, rows_len: usize) -> (usize, usize, usize) {
+        let k = self.x.end.saturating_sub(self.x.start);
+        let o = w_len.checked_div(k).map_or(bias_len, |r| r.min(bias_len));
+        match self.out.checked_add(o) {
+            Some(end) if self.x.end <= self.out && end <= self.stride && o > 0 => {
+                let fit = rows_len
+                    .checked_sub(end)
+                    .map_or(0, |rest| rest / self.stride + 1);
+                (k, o, self.points.min(fit))
+            }
+            _ => (0, 0, 0),
+        }
+    }
+}
+
+/// [`matvec_f32`] for each point of a block ([`PointRows`]): point `p`'s inputs through the
+/// weights into its outputs, for the `(K, O, P)` of [`PointRows::dims`]; nothing else is
+/// written. The specification of the blocked kernels ([`super::Kernels::matmat_f32`]), which
+/// give the same bits: every row and point is summed exactly as here.
+pub fn matmat_f32(w: &[f32], bias: &[f32], rows: &mut [f32], at: &PointRows) {
+    matmat_f32_by(matvec_f32, w, bias, rows, at)
+}
+
+/// [`matmat_f32`] with another [`matvec_f32`] (a kernel table's, bit-exact with it).
+#[inline(always)]
+pub(crate) fn matmat_f32_by(
+    matvec: impl Fn(&[f32], &[f32], &[f32], &mut [f32]),
+    w: &[f32],
+    bias: &[f32],
+    rows: &mut [f32],
+    at: &PointRows,
+) {
+    let (k, o, points) = at.dims(w.len(), bias.len(), rows.len());
+    if o == 0 {
+        return;
+    }
+    for row in rows.chunks_mut(at.stride).take(points) {
+        let (before, after) = row.split_at_mut(at.out);
+        matvec(
+            &w[..o * k],
+            &before[at.x.clone()],
+            &bias[..o],
+            &mut after[..o],
+        );
+    }
+}
+
+/// One row's result from its 16 partial sums as [`matvec_f32`] finishes it (`sum_lanes`, the
+/// tail's dot product, the bias), for a kernel that has summed the lanes itself.
+#[inline(always)]
+pub(crate) fn finish_lanes(sum: f32, w_tail: &[f32], x_tail: &[f32], b: f32) -> f32 {
+    let tail = w_tail
+        .iter()
+        .zip(x_tail)
+        .fold(0.0, |acc, (&w, &x)| acc + w * x);
+    sum + tail + b
 }
 
 /// Requantizes a row of int32 accumulators to int8 with [`crate::quant::requantize`]:

@@ -54,9 +54,10 @@
 
 use core::arch::x86_64::*;
 
-use super::{rows, Isa, Kernels};
+use super::{rows, Isa, Kernels, PointRows};
 
 mod amx;
+mod f32mm;
 mod packed;
 mod peak;
 
@@ -64,6 +65,7 @@ pub use amx::{
     matmat_packed_i8_amx, matmat_packed_pool_i8_amx, request_tile_data, MIN_K as AMX_MIN_K,
 };
 
+pub use f32mm::matmat_f32_avx512;
 pub use packed::{
     matmat_packed_i16_avx2, matmat_packed_i16_avx512bw, matmat_packed_i16_avx512vnni,
     matmat_packed_i16_avxvnni, matmat_packed_i8_avx2, matmat_packed_i8_avx512bw,
@@ -348,6 +350,21 @@ widened! {
     f32_avx2 / avx2_f32: "avx2" => matvec_f32(w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]);
     f32_avx512 / avx512_f32: "avx2,avx512f,avx512bw,avx512vl" => matvec_f32(
         w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]);
+}
+
+/// The f32 matrix-matrix kernel of an x86 table's ISA, where it has one (the AVX-512 tables;
+/// the AVX2 ones run [`f32_kernel`] point by point); the same invariant as [`f32_kernel`].
+pub(super) fn f32_matmat_kernel(k: &Kernels) -> Option<super::MatmatF32> {
+    match k.isa() {
+        Isa::X86Avx512Bw | Isa::X86Avx512Vnni | Isa::X86Amx => Some(avx512_f32mm),
+        _ => None,
+    }
+}
+
+fn avx512_f32mm(w: &[f32], bias: &[f32], rows: &mut [f32], at: &PointRows) {
+    // SAFETY: as for `checked!`: only reachable through a `Kernels` whose ISA the CPU supports
+    // (AVX-512F for the tables `f32_matmat_kernel` gives it to).
+    unsafe { matmat_f32_avx512(w, bias, rows, at) }
 }
 
 /// The packed kernels behind the same kind of wrapper.

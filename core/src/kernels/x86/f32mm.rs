@@ -1,0 +1,260 @@
+//! The f32 engine's point layers on AVX-512: a block of points through a tile of rows, four
+//! rows by four points per register tile, bit for bit [`crate::kernels::reference::matmat_f32`].
+//!
+//! The reference sums each row and point in 16 partial sums (input `j` into sum `j mod 16`),
+//! adds them by halves (lanes `i` and `i + 8`, then `i + 4`, `i + 2`, `i + 1`), then the tail's
+//! dot product and the bias. One 512-bit register holds the 16 partial sums of one row and
+//! point; a multiply and an add per step (never a fused multiply-add, which rounds once where
+//! the reference rounds twice) keep every lane's operations those of the reference, and the
+//! halving is done on the register in the same order. Per step of 16 inputs a tile loads four
+//! weight vectors and four input vectors for 16 products: point by point
+//! ([`crate::kernels::reference::matvec_f32`], four rows at a time), each product needed a load
+//! of its own and every output its own horizontal sum of scalars.
+
+use core::arch::x86_64::*;
+
+use crate::kernels::reference::{finish_lanes, PointRows};
+
+/// Partial sums per row and point (one 512-bit register).
+const LANES: usize = 16;
+
+/// Rows and points per register tile: 16 accumulators, four weight and four input registers.
+const TILE: usize = 4;
+
+/// [`crate::kernels::reference::matmat_f32`], bit-exact, on AVX-512 registers.
+///
+/// # Safety
+/// The CPU must support AVX-512F.
+#[target_feature(enable = "avx2,avx512f")]
+pub unsafe fn matmat_f32_avx512(w: &[f32], bias: &[f32], rows: &mut [f32], at: &PointRows) {
+    let (k, o, points) = at.dims(w.len(), bias.len(), rows.len());
+    if o == 0 {
+        return;
+    }
+    if k == 0 {
+        // `matvec_f32` gives the bias itself (not `0 + 0 + b`, which loses a -0.0).
+        for row in rows.chunks_mut(at.stride).take(points) {
+            row[at.out..][..o].copy_from_slice(&bias[..o]);
+        }
+        return;
+    }
+    let mut p0 = 0;
+    while p0 < points {
+        let np = (points - p0).min(TILE);
+        let mut o0 = 0;
+        while o0 < o {
+            let no = (o - o0).min(TILE);
+            let ws = &w[o0 * k..(o0 + no) * k];
+            let bs = &bias[o0..o0 + no];
+            let (at0, n) = ((p0, o0), (no, np));
+            match n {
+                (TILE, TILE) => tile::<TILE, TILE>(ws, bs, k, rows, at, p0, o0),
+                (TILE, _) => tiles_of::<TILE, 1>(ws, bs, k, rows, at, at0, n),
+                (_, TILE) => tiles_of::<1, TILE>(ws, bs, k, rows, at, at0, n),
+                _ => tiles_of::<1, 1>(ws, bs, k, rows, at, at0, n),
+            }
+            o0 += no;
+        }
+        p0 += np;
+    }
+}
+
+/// Rows `o0..o0 + nr` by points `p0..p0 + np` as tiles of `R` rows by `P` points (`R`
+/// divides `nr`, `P` divides `np`): the edges of the block, where a whole tile does not fit.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+#[target_feature(enable = "avx2,avx512f")]
+fn tiles_of<const R: usize, const P: usize>(
+    w: &[f32],
+    bias: &[f32],
+    k: usize,
+    rows: &mut [f32],
+    at: &PointRows,
+    (p0, o0): (usize, usize),
+    (nr, np): (usize, usize),
+) {
+    for r in (0..nr).step_by(R) {
+        let (wr, br) = (&w[r * k..(r + R) * k], &bias[r..r + R]);
+        for p in (p0..p0 + np).step_by(P) {
+            tile::<R, P>(wr, br, k, rows, at, p, o0 + r);
+        }
+    }
+}
+
+/// Rows `o0..o0 + R` (`w`: their `R · k` weights, `bias` theirs) for points `p0..p0 + P`,
+/// all of them inside `rows` ([`PointRows::dims`] checked it).
+#[inline]
+#[target_feature(enable = "avx2,avx512f")]
+fn tile<const R: usize, const P: usize>(
+    w: &[f32],
+    bias: &[f32],
+    k: usize,
+    rows: &mut [f32],
+    at: &PointRows,
+    p0: usize,
+    o0: usize,
+) {
+    let full = k / LANES;
+    let mut sums = [[0.0f32; P]; R];
+    {
+        // Every slice cut to `full` steps, so that the loop keeps few bounds checks.
+        let mut ws: [(&[[f32; LANES]], &[f32]); R] = [(&[], &[]); R];
+        for (r, ws) in ws.iter_mut().enumerate() {
+            let (lanes, tail) = w[r * k..(r + 1) * k].as_chunks::<LANES>();
+            *ws = (&lanes[..full], tail);
+        }
+        let mut xs: [(&[[f32; LANES]], &[f32]); P] = [(&[], &[]); P];
+        for (i, xs) in xs.iter_mut().enumerate() {
+            let x = &rows[(p0 + i) * at.stride + at.x.start..][..k];
+            let (lanes, tail) = x.as_chunks::<LANES>();
+            *xs = (&lanes[..full], tail);
+        }
+        let mut acc = [[_mm512_setzero_ps(); P]; R];
+        for s in 0..full {
+            let mut wv = [_mm512_setzero_ps(); R];
+            for (v, ws) in wv.iter_mut().zip(&ws) {
+                *v = load(&ws.0[s]);
+            }
+            let mut xv = [_mm512_setzero_ps(); P];
+            for (v, xs) in xv.iter_mut().zip(&xs) {
+                *v = load(&xs.0[s]);
+            }
+            for (acc, &wv) in acc.iter_mut().zip(&wv) {
+                for (a, &xv) in acc.iter_mut().zip(&xv) {
+                    *a = _mm512_add_ps(*a, _mm512_mul_ps(wv, xv));
+                }
+            }
+        }
+        if let (true, Some(b)) = (
+            R == TILE && P == TILE && k.is_multiple_of(LANES),
+            bias.first_chunk(),
+        ) {
+            // No tails: a row and point is `(Σ + 0.0) + b` (`finish_lanes` with an empty
+            // tail), four rows of a point at a time.
+            let mut a = [[_mm512_setzero_ps(); TILE]; TILE];
+            for (a, acc) in a.iter_mut().zip(&acc) {
+                for (a, &acc) in a.iter_mut().zip(acc) {
+                    *a = acc;
+                }
+            }
+            let v = halves16(a);
+            let b = load4(b);
+            let lanes = [
+                _mm512_extractf32x4_ps::<0>(v),
+                _mm512_extractf32x4_ps::<1>(v),
+                _mm512_extractf32x4_ps::<2>(v),
+                _mm512_extractf32x4_ps::<3>(v),
+            ];
+            for (i, l) in lanes.into_iter().enumerate() {
+                let y = &mut rows[(p0 + i) * at.stride + at.out + o0..];
+                if let Some(y) = y.first_chunk_mut::<TILE>() {
+                    store4(y, _mm_add_ps(_mm_add_ps(l, _mm_setzero_ps()), b));
+                }
+            }
+            return;
+        }
+        for (((sums, acc), ws), &b) in sums.iter_mut().zip(&acc).zip(&ws).zip(bias) {
+            for ((s, &a), xs) in sums.iter_mut().zip(acc).zip(&xs) {
+                *s = finish_lanes(halves(a), ws.1, xs.1, b);
+            }
+        }
+    }
+    for (i, p) in (p0..p0 + P).enumerate() {
+        let y = &mut rows[p * at.stride + at.out + o0..][..R];
+        for (y, s) in y.iter_mut().zip(&sums) {
+            *y = s[i];
+        }
+    }
+}
+
+/// 4 floats.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn load4(v: &[f32; 4]) -> __m128 {
+    // SAFETY: `v` is 16 readable bytes; `loadu` has no alignment requirement.
+    unsafe { _mm_loadu_ps(v.as_ptr()) }
+}
+
+/// 4 floats into `y`.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn store4(y: &mut [f32; 4], v: __m128) {
+    // SAFETY: `y` is 16 writable bytes; `storeu` has no alignment requirement.
+    unsafe { _mm_storeu_ps(y.as_mut_ptr(), v) }
+}
+
+/// 16 floats.
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn load(v: &[f32; LANES]) -> __m512 {
+    // SAFETY: `v` is 64 readable bytes; `loadu` has no alignment requirement.
+    unsafe { _mm512_loadu_ps(v.as_ptr()) }
+}
+
+/// The 16 lanes added as the reference's `sum_lanes` adds them: lane `i` and `i + 8`, then
+/// `i + 4`, `i + 2`, `i + 1`.
+#[inline]
+#[target_feature(enable = "avx2,avx512f")]
+fn halves(a: __m512) -> f32 {
+    let h8 = _mm256_add_ps(
+        _mm512_castps512_ps256(a),
+        _mm256_castpd_ps(_mm512_extractf64x4_pd::<1>(_mm512_castps_pd(a))),
+    );
+    let h4 = _mm_add_ps(_mm256_castps256_ps128(h8), _mm256_extractf128_ps::<1>(h8));
+    let h2 = _mm_add_ps(h4, _mm_movehl_ps(h4, h4));
+    let h1 = _mm_add_ss(h2, _mm_movehdup_ps(h2));
+    _mm_cvtss_f32(h1)
+}
+
+/// [`halves`] of 16 registers at once, `a[r][p]`: 128-bit lane `p` of the result is
+/// `[halves(a[0][p]), halves(a[1][p]), halves(a[2][p]), halves(a[3][p])]`, every lane added
+/// to the same lane as in [`halves`] (a transposing tree: 30 shuffles and adds for 16 sums,
+/// where [`halves`] takes seven instructions for one). The float twin of the int8 kernels'
+/// `hsum16_512` (`matmat.rs`): the same shuffles, whose pairs of lanes happen to be the
+/// reference's halving order, with float adds.
+#[inline]
+#[target_feature(enable = "avx2,avx512f")]
+fn halves16(a: [[__m512; 4]; 4]) -> __m512 {
+    // Lanes `i` and `i + 8`: [a.l0 + a.l2, a.l1 + a.l3, b.l0 + b.l2, b.l1 + b.l3] (128-bit
+    // lanes).
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    fn eighths(a: __m512, b: __m512) -> __m512 {
+        _mm512_add_ps(
+            _mm512_shuffle_f32x4::<0b01_00_01_00>(a, b),
+            _mm512_shuffle_f32x4::<0b11_10_11_10>(a, b),
+        )
+    }
+    // Lanes `i` and `i + 4`: from [A0 A1 B0 B1] and [C0 C1 D0 D1], [A0 + A1, B0 + B1, C0 + C1,
+    // D0 + D1].
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    fn fourths(c: __m512, d: __m512) -> __m512 {
+        _mm512_add_ps(
+            _mm512_shuffle_f32x4::<0b10_00_10_00>(c, d),
+            _mm512_shuffle_f32x4::<0b11_01_11_01>(c, d),
+        )
+    }
+    // e[r], 128-bit lane p: the four partial sums of a[r][p] left after two halvings.
+    let mut e = [_mm512_setzero_ps(); 4];
+    for (e, a) in e.iter_mut().zip(&a) {
+        *e = fourths(eighths(a[0], a[1]), eighths(a[2], a[3]));
+    }
+    // Lanes `i` and `i + 2`, per 128-bit lane: [e0.0 + e0.2, e1.0 + e1.2, e0.1 + e0.3,
+    // e1.1 + e1.3], the same for e2 and e3.
+    let t01 = _mm512_add_ps(
+        _mm512_unpacklo_ps(e[0], e[1]),
+        _mm512_unpackhi_ps(e[0], e[1]),
+    );
+    let t23 = _mm512_add_ps(
+        _mm512_unpacklo_ps(e[2], e[3]),
+        _mm512_unpackhi_ps(e[2], e[3]),
+    );
+    // Lanes `i` and `i + 1`: the first pair of each 128-bit lane of t01 and t23 against the
+    // second.
+    let (t01, t23) = (_mm512_castps_pd(t01), _mm512_castps_pd(t23));
+    _mm512_add_ps(
+        _mm512_castpd_ps(_mm512_unpacklo_pd(t01, t23)),
+        _mm512_castpd_ps(_mm512_unpackhi_pd(t01, t23)),
+    )
+}
