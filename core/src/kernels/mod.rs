@@ -425,9 +425,10 @@ impl Kernels {
     }
 
     /// [`reference::matmat_f32`], bit-exact (so [`Kernels::matvec_f32`] for each point): the
-    /// f32 engine's point layers, a block of points at a time. The AVX-512 tables run
-    /// register tiles of four rows by four points ([`x86::matmat_f32_avx512`]); the others
-    /// run [`Kernels::matvec_f32`] point by point.
+    /// f32 engine's point layers, a block of points at a time. The x86 tables run register
+    /// tiles (four rows by four points on AVX-512, [`x86::matmat_f32_avx512`]; one row by four
+    /// points on AVX2, [`x86::matmat_f32_avx2`]); the others run [`Kernels::matvec_f32`]
+    /// point by point.
     #[inline]
     pub fn matmat_f32(&self, w: &[f32], bias: &[f32], rows: &mut [f32], at: &PointRows) {
         #[cfg(target_arch = "x86_64")]

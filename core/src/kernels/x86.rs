@@ -65,7 +65,7 @@ pub use amx::{
     matmat_packed_i8_amx, matmat_packed_pool_i8_amx, request_tile_data, MIN_K as AMX_MIN_K,
 };
 
-pub use f32mm::matmat_f32_avx512;
+pub use f32mm::{matmat_f32_avx2, matmat_f32_avx512};
 pub use packed::{
     matmat_packed_i16_avx2, matmat_packed_i16_avx512bw, matmat_packed_i16_avx512vnni,
     matmat_packed_i16_avxvnni, matmat_packed_i8_avx2, matmat_packed_i8_avx512bw,
@@ -352,13 +352,19 @@ widened! {
         w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]);
 }
 
-/// The f32 matrix-matrix kernel of an x86 table's ISA, where it has one (the AVX-512 tables;
-/// the AVX2 ones run [`f32_kernel`] point by point); the same invariant as [`f32_kernel`].
+/// The f32 matrix-matrix kernel of an x86 table's ISA; the same invariant as [`f32_kernel`].
 pub(super) fn f32_matmat_kernel(k: &Kernels) -> Option<super::MatmatF32> {
     match k.isa() {
+        Isa::X86Avx2 | Isa::X86AvxVnni => Some(avx2_f32mm),
         Isa::X86Avx512Bw | Isa::X86Avx512Vnni | Isa::X86Amx => Some(avx512_f32mm),
         _ => None,
     }
+}
+
+fn avx2_f32mm(w: &[f32], bias: &[f32], rows: &mut [f32], at: &PointRows) {
+    // SAFETY: as for `checked!`: only reachable through a `Kernels` whose ISA the CPU supports
+    // (AVX2 for every x86 table).
+    unsafe { matmat_f32_avx2(w, bias, rows, at) }
 }
 
 fn avx512_f32mm(w: &[f32], bias: &[f32], rows: &mut [f32], at: &PointRows) {

@@ -1,170 +1,239 @@
-//! The f32 engine's point layers on AVX-512: a block of points through a tile of rows, four
-//! rows by four points per register tile, bit for bit [`crate::kernels::reference::matmat_f32`].
+//! The f32 engine's point layers on AVX-512 and AVX2: a block of points through a tile of rows,
+//! several rows and points per register tile, bit for bit
+//! [`crate::kernels::reference::matmat_f32`].
 //!
 //! The reference sums each row and point in 16 partial sums (input `j` into sum `j mod 16`),
 //! adds them by halves (lanes `i` and `i + 8`, then `i + 4`, `i + 2`, `i + 1`), then the tail's
-//! dot product and the bias. One 512-bit register holds the 16 partial sums of one row and
-//! point; a multiply and an add per step (never a fused multiply-add, which rounds once where
-//! the reference rounds twice) keep every lane's operations those of the reference, and the
-//! halving is done on the register in the same order. Per step of 16 inputs a tile loads four
-//! weight vectors and four input vectors for 16 products: point by point
-//! ([`crate::kernels::reference::matvec_f32`], four rows at a time), each product needed a load
+//! dot product and the bias. One 512-bit register (two 256-bit ones) holds the 16 partial sums
+//! of one row and point; a multiply and an add per step (never a fused multiply-add, which
+//! rounds once where the reference rounds twice) keep every lane's operations those of the
+//! reference, and the halving is done on the registers in the same order. On AVX-512 a tile is
+//! four rows by four points: per step of 16 inputs it loads four weight vectors and four input
+//! vectors for 16 products, where point by point
+//! ([`crate::kernels::reference::matvec_f32`], four rows at a time) each product needed a load
 //! of its own and every output its own horizontal sum of scalars.
 
 use core::arch::x86_64::*;
 
 use crate::kernels::reference::{finish_lanes, PointRows};
 
-/// Partial sums per row and point (one 512-bit register).
+/// Partial sums per row and point (one 512-bit register, two 256-bit ones).
 const LANES: usize = 16;
 
-/// Rows and points per register tile: 16 accumulators, four weight and four input registers.
-const TILE: usize = 4;
-
-/// [`crate::kernels::reference::matmat_f32`], bit-exact, on AVX-512 registers.
-///
-/// # Safety
-/// The CPU must support AVX-512F.
-#[target_feature(enable = "avx2,avx512f")]
-pub unsafe fn matmat_f32_avx512(w: &[f32], bias: &[f32], rows: &mut [f32], at: &PointRows) {
-    let (k, o, points) = at.dims(w.len(), bias.len(), rows.len());
-    if o == 0 {
-        return;
-    }
-    if k == 0 {
-        // `matvec_f32` gives the bias itself (not `0 + 0 + b`, which loses a -0.0).
-        for row in rows.chunks_mut(at.stride).take(points) {
-            row[at.out..][..o].copy_from_slice(&bias[..o]);
-        }
-        return;
-    }
-    let mut p0 = 0;
-    while p0 < points {
-        let np = (points - p0).min(TILE);
-        let mut o0 = 0;
-        while o0 < o {
-            let no = (o - o0).min(TILE);
-            let ws = &w[o0 * k..(o0 + no) * k];
-            let bs = &bias[o0..o0 + no];
-            let (at0, n) = ((p0, o0), (no, np));
-            match n {
-                (TILE, TILE) => tile::<TILE, TILE>(ws, bs, k, rows, at, p0, o0),
-                (TILE, _) => tiles_of::<TILE, 1>(ws, bs, k, rows, at, at0, n),
-                (_, TILE) => tiles_of::<1, TILE>(ws, bs, k, rows, at, at0, n),
-                _ => tiles_of::<1, 1>(ws, bs, k, rows, at, at0, n),
-            }
-            o0 += no;
-        }
-        p0 += np;
-    }
+/// Some rows of a layer: their weights (`k` per row) and bias.
+#[derive(Clone, Copy)]
+struct Rows<'a> {
+    w: &'a [f32],
+    bias: &'a [f32],
+    k: usize,
 }
 
-/// Rows `o0..o0 + nr` by points `p0..p0 + np` as tiles of `R` rows by `P` points (`R`
-/// divides `nr`, `P` divides `np`): the edges of the block, where a whole tile does not fit.
-#[allow(clippy::too_many_arguments)]
+/// Stamps the block kernel for one register width: `$name` compiled with `$features`, the 16
+/// partial sums of a row and point in a `$v`, register tiles of `$rt` rows by `$pt` points
+/// (`$zero`, `$load`, `$madd` and `$halves` the width's steps; `$fast` a tile-wide finish
+/// that returns whether it wrote the tile).
+macro_rules! f32_tiles {
+    (
+        $m:ident, $name:ident, $features:literal, $v:ty, rows: $rt:expr, points: $pt:expr,
+        zero: $zero:expr, load: $load:ident, madd: $madd:ident, halves: $halves:ident,
+        fast: $fast:ident $(,)?
+    ) => {
+        mod $m {
+            use super::*;
+
+            /// Rows per register tile.
+            const RT: usize = $rt;
+            /// Points per register tile.
+            const PT: usize = $pt;
+
+            #[doc = concat!("[`crate::kernels::reference::matmat_f32`], bit-exact, with `", $features, "`.")]
+            ///
+            /// # Safety
+            #[doc = concat!("The CPU must support `", $features, "`.")]
+            #[target_feature(enable = $features)]
+            pub unsafe fn $name(w: &[f32], bias: &[f32], rows: &mut [f32], at: &PointRows) {
+                let (k, o, points) = at.dims(w.len(), bias.len(), rows.len());
+                if o == 0 {
+                    return;
+                }
+                if k == 0 {
+                    // `matvec_f32` gives the bias itself (not `0 + 0 + b`, which loses a -0.0).
+                    for row in rows.chunks_mut(at.stride).take(points) {
+                        row[at.out..][..o].copy_from_slice(&bias[..o]);
+                    }
+                    return;
+                }
+                let mut p0 = 0;
+                while p0 < points {
+                    let np = (points - p0).min(PT);
+                    let mut o0 = 0;
+                    while o0 < o {
+                        let no = (o - o0).min(RT);
+                        let l = Rows { w: &w[o0 * k..(o0 + no) * k], bias: &bias[o0..o0 + no], k };
+                        let (at0, n) = ((p0, o0), (no, np));
+                        match n {
+                            (RT, PT) => tile::<RT, PT>(l, rows, at, at0),
+                            (RT, _) => tiles_of::<RT, 1>(l, rows, at, at0, n),
+                            (_, PT) => tiles_of::<1, PT>(l, rows, at, at0, n),
+                            _ => tiles_of::<1, 1>(l, rows, at, at0, n),
+                        }
+                        o0 += no;
+                    }
+                    p0 += np;
+                }
+            }
+
+            /// Rows `o0..o0 + nr` by points `p0..p0 + np` as tiles of `R` rows by `P` points
+            /// (`R` divides `nr`, `P` divides `np`): the edges of the block, where a whole
+            /// tile does not fit.
+            #[inline]
+            #[target_feature(enable = $features)]
+            fn tiles_of<const R: usize, const P: usize>(
+                l: Rows<'_>,
+                rows: &mut [f32],
+                at: &PointRows,
+                (p0, o0): (usize, usize),
+                (nr, np): (usize, usize),
+            ) {
+                let k = l.k;
+                for r in (0..nr).step_by(R) {
+                    let lr = Rows { w: &l.w[r * k..(r + R) * k], bias: &l.bias[r..r + R], k };
+                    for p in (p0..p0 + np).step_by(P) {
+                        tile::<R, P>(lr, rows, at, (p, o0 + r));
+                    }
+                }
+            }
+
+            /// Rows `o0..o0 + R` (`l`: their weights and bias) for points `p0..p0 + P`, all
+            /// of them inside `rows` ([`PointRows::dims`] checked it).
+            #[inline]
+            #[target_feature(enable = $features)]
+            fn tile<const R: usize, const P: usize>(
+                Rows { w, bias, k }: Rows<'_>,
+                rows: &mut [f32],
+                at: &PointRows,
+                (p0, o0): (usize, usize),
+            ) {
+                let full = k / LANES;
+                let mut sums = [[0.0f32; P]; R];
+                // The sums, left in registers for a tile-wide finish where no row has a tail.
+                let whole = {
+                    // Every slice cut to `full` steps, so that the loop keeps few bounds
+                    // checks.
+                    let mut ws: [(&[[f32; LANES]], &[f32]); R] = [(&[], &[]); R];
+                    for (r, ws) in ws.iter_mut().enumerate() {
+                        let (lanes, tail) = w[r * k..(r + 1) * k].as_chunks::<LANES>();
+                        *ws = (&lanes[..full], tail);
+                    }
+                    let mut xs: [(&[[f32; LANES]], &[f32]); P] = [(&[], &[]); P];
+                    for (i, xs) in xs.iter_mut().enumerate() {
+                        let x = &rows[(p0 + i) * at.stride + at.x.start..][..k];
+                        let (lanes, tail) = x.as_chunks::<LANES>();
+                        *xs = (&lanes[..full], tail);
+                    }
+                    let mut acc: [[$v; P]; R] = [[$zero; P]; R];
+                    for s in 0..full {
+                        // Each vector loaded once per step into a local, then shared.
+                        let mut wv: [$v; R] = [$zero; R];
+                        for (v, ws) in wv.iter_mut().zip(&ws) {
+                            *v = $load(&ws.0[s]);
+                        }
+                        let mut xv: [$v; P] = [$zero; P];
+                        for (v, xs) in xv.iter_mut().zip(&xs) {
+                            *v = $load(&xs.0[s]);
+                        }
+                        for (acc, &wv) in acc.iter_mut().zip(&wv) {
+                            for (a, &xv) in acc.iter_mut().zip(&xv) {
+                                *a = $madd(*a, wv, xv);
+                            }
+                        }
+                    }
+                    if k.is_multiple_of(LANES) {
+                        Some(acc)
+                    } else {
+                        for (((sums, acc), ws), &b) in sums.iter_mut().zip(&acc).zip(&ws).zip(bias) {
+                            for ((s, &a), xs) in sums.iter_mut().zip(acc).zip(&xs) {
+                                *s = finish_lanes($halves(a), ws.1, xs.1, b);
+                            }
+                        }
+                        None
+                    }
+                };
+                if let Some(acc) = whole {
+                    if $fast(&acc, bias, rows, at, (p0, o0)) {
+                        return;
+                    }
+                    for ((sums, acc), &b) in sums.iter_mut().zip(&acc).zip(bias) {
+                        for (s, &a) in sums.iter_mut().zip(acc) {
+                            *s = finish_lanes($halves(a), &[], &[], b);
+                        }
+                    }
+                }
+                for (i, p) in (p0..p0 + P).enumerate() {
+                    let y = &mut rows[p * at.stride + at.out + o0..][..R];
+                    for (y, s) in y.iter_mut().zip(&sums) {
+                        *y = s[i];
+                    }
+                }
+            }
+        }
+
+        pub use $m::$name;
+    };
+}
+
+f32_tiles! {
+    zmm, matmat_f32_avx512, "avx2,avx512f", __m512, rows: 4, points: 4,
+    zero: _mm512_setzero_ps(), load: load512, madd: madd512, halves: halves, fast: fast512,
+}
+
+// One row by four points: four accumulators of two registers each (8 of 16), the weight
+// vector's two, the inputs' as they are loaded. Measured on the paper model (AVX2 code on the
+// Zen 5 VM, a timing loop of the f32 engine): 28.3 ms against 35.9 point by point; two rows by
+// two points 31.8, three by two 46 (its 12 accumulator registers and the operands spilled),
+// one by five or six 27.6–28.8.
+f32_tiles! {
+    ymm, matmat_f32_avx2, "avx2", [__m256; 2], rows: 1, points: 4,
+    zero: [_mm256_setzero_ps(); 2], load: load256, madd: madd256, halves: halves_256,
+    fast: no_fast,
+}
+
+/// The AVX-512 tile's finish when the tile is four rows by four points (the caller calls it
+/// only where no row has a tail): a row and point is `(Σ + 0.0) + b` (`finish_lanes` with an empty tail), four
+/// rows of a point at a time, the 16 sums from one transposing tree ([`halves16`]).
 #[inline]
 #[target_feature(enable = "avx2,avx512f")]
-fn tiles_of<const R: usize, const P: usize>(
-    w: &[f32],
+fn fast512<const R: usize, const P: usize>(
+    acc: &[[__m512; P]; R],
     bias: &[f32],
-    k: usize,
     rows: &mut [f32],
     at: &PointRows,
     (p0, o0): (usize, usize),
-    (nr, np): (usize, usize),
-) {
-    for r in (0..nr).step_by(R) {
-        let (wr, br) = (&w[r * k..(r + R) * k], &bias[r..r + R]);
-        for p in (p0..p0 + np).step_by(P) {
-            tile::<R, P>(wr, br, k, rows, at, p, o0 + r);
+) -> bool {
+    let (4, 4, Some(b)) = (R, P, bias.first_chunk::<4>()) else {
+        return false;
+    };
+    let mut a = [[_mm512_setzero_ps(); 4]; 4];
+    for (a, acc) in a.iter_mut().zip(acc) {
+        for (a, &acc) in a.iter_mut().zip(acc) {
+            *a = acc;
         }
     }
-}
-
-/// Rows `o0..o0 + R` (`w`: their `R · k` weights, `bias` theirs) for points `p0..p0 + P`,
-/// all of them inside `rows` ([`PointRows::dims`] checked it).
-#[inline]
-#[target_feature(enable = "avx2,avx512f")]
-fn tile<const R: usize, const P: usize>(
-    w: &[f32],
-    bias: &[f32],
-    k: usize,
-    rows: &mut [f32],
-    at: &PointRows,
-    p0: usize,
-    o0: usize,
-) {
-    let full = k / LANES;
-    let mut sums = [[0.0f32; P]; R];
-    {
-        // Every slice cut to `full` steps, so that the loop keeps few bounds checks.
-        let mut ws: [(&[[f32; LANES]], &[f32]); R] = [(&[], &[]); R];
-        for (r, ws) in ws.iter_mut().enumerate() {
-            let (lanes, tail) = w[r * k..(r + 1) * k].as_chunks::<LANES>();
-            *ws = (&lanes[..full], tail);
-        }
-        let mut xs: [(&[[f32; LANES]], &[f32]); P] = [(&[], &[]); P];
-        for (i, xs) in xs.iter_mut().enumerate() {
-            let x = &rows[(p0 + i) * at.stride + at.x.start..][..k];
-            let (lanes, tail) = x.as_chunks::<LANES>();
-            *xs = (&lanes[..full], tail);
-        }
-        let mut acc = [[_mm512_setzero_ps(); P]; R];
-        for s in 0..full {
-            let mut wv = [_mm512_setzero_ps(); R];
-            for (v, ws) in wv.iter_mut().zip(&ws) {
-                *v = load(&ws.0[s]);
-            }
-            let mut xv = [_mm512_setzero_ps(); P];
-            for (v, xs) in xv.iter_mut().zip(&xs) {
-                *v = load(&xs.0[s]);
-            }
-            for (acc, &wv) in acc.iter_mut().zip(&wv) {
-                for (a, &xv) in acc.iter_mut().zip(&xv) {
-                    *a = _mm512_add_ps(*a, _mm512_mul_ps(wv, xv));
-                }
-            }
-        }
-        if let (true, Some(b)) = (
-            R == TILE && P == TILE && k.is_multiple_of(LANES),
-            bias.first_chunk(),
-        ) {
-            // No tails: a row and point is `(Σ + 0.0) + b` (`finish_lanes` with an empty
-            // tail), four rows of a point at a time.
-            let mut a = [[_mm512_setzero_ps(); TILE]; TILE];
-            for (a, acc) in a.iter_mut().zip(&acc) {
-                for (a, &acc) in a.iter_mut().zip(acc) {
-                    *a = acc;
-                }
-            }
-            let v = halves16(a);
-            let b = load4(b);
-            let lanes = [
-                _mm512_extractf32x4_ps::<0>(v),
-                _mm512_extractf32x4_ps::<1>(v),
-                _mm512_extractf32x4_ps::<2>(v),
-                _mm512_extractf32x4_ps::<3>(v),
-            ];
-            for (i, l) in lanes.into_iter().enumerate() {
-                let y = &mut rows[(p0 + i) * at.stride + at.out + o0..];
-                if let Some(y) = y.first_chunk_mut::<TILE>() {
-                    store4(y, _mm_add_ps(_mm_add_ps(l, _mm_setzero_ps()), b));
-                }
-            }
-            return;
-        }
-        for (((sums, acc), ws), &b) in sums.iter_mut().zip(&acc).zip(&ws).zip(bias) {
-            for ((s, &a), xs) in sums.iter_mut().zip(acc).zip(&xs) {
-                *s = finish_lanes(halves(a), ws.1, xs.1, b);
-            }
+    let v = halves16(a);
+    let b = load4(b);
+    let lanes = [
+        _mm512_extractf32x4_ps::<0>(v),
+        _mm512_extractf32x4_ps::<1>(v),
+        _mm512_extractf32x4_ps::<2>(v),
+        _mm512_extractf32x4_ps::<3>(v),
+    ];
+    for (i, l) in lanes.into_iter().enumerate() {
+        let y = &mut rows[(p0 + i) * at.stride + at.out + o0..];
+        if let Some(y) = y.first_chunk_mut::<4>() {
+            store4(y, _mm_add_ps(_mm_add_ps(l, _mm_setzero_ps()), b));
         }
     }
-    for (i, p) in (p0..p0 + P).enumerate() {
-        let y = &mut rows[p * at.stride + at.out + o0..][..R];
-        for (y, s) in y.iter_mut().zip(&sums) {
-            *y = s[i];
-        }
-    }
+    true
 }
 
 /// 4 floats.
@@ -186,9 +255,52 @@ fn store4(y: &mut [f32; 4], v: __m128) {
 /// 16 floats.
 #[inline]
 #[target_feature(enable = "avx512f")]
-fn load(v: &[f32; LANES]) -> __m512 {
+fn load512(v: &[f32; LANES]) -> __m512 {
     // SAFETY: `v` is 64 readable bytes; `loadu` has no alignment requirement.
     unsafe { _mm512_loadu_ps(v.as_ptr()) }
+}
+
+/// 16 floats, as two registers.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn load256(v: &[f32; LANES]) -> [__m256; 2] {
+    // SAFETY: `v` is 64 readable bytes; `loadu` has no alignment requirement.
+    unsafe {
+        [
+            _mm256_loadu_ps(v.as_ptr()),
+            _mm256_loadu_ps(v.as_ptr().add(8)),
+        ]
+    }
+}
+
+/// `a + w · x` per lane, rounded twice (the reference's `acc + w * x`).
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn madd512(a: __m512, w: __m512, x: __m512) -> __m512 {
+    _mm512_add_ps(a, _mm512_mul_ps(w, x))
+}
+
+/// [`madd512`] on two registers.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn madd256(a: [__m256; 2], w: [__m256; 2], x: [__m256; 2]) -> [__m256; 2] {
+    [
+        _mm256_add_ps(a[0], _mm256_mul_ps(w[0], x[0])),
+        _mm256_add_ps(a[1], _mm256_mul_ps(w[1], x[1])),
+    ]
+}
+
+/// AVX2 has no tile-wide finish: every output is finished alone.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn no_fast<const R: usize, const P: usize>(
+    _: &[[[__m256; 2]; P]; R],
+    _: &[f32],
+    _: &mut [f32],
+    _: &PointRows,
+    _: (usize, usize),
+) -> bool {
+    false
 }
 
 /// The 16 lanes added as the reference's `sum_lanes` adds them: lane `i` and `i + 8`, then
@@ -196,10 +308,23 @@ fn load(v: &[f32; LANES]) -> __m512 {
 #[inline]
 #[target_feature(enable = "avx2,avx512f")]
 fn halves(a: __m512) -> f32 {
-    let h8 = _mm256_add_ps(
+    halves8(_mm256_add_ps(
         _mm512_castps512_ps256(a),
         _mm256_castpd_ps(_mm512_extractf64x4_pd::<1>(_mm512_castps_pd(a))),
-    );
+    ))
+}
+
+/// [`halves`] on AVX2's two registers (lanes 0–7 and 8–15).
+#[inline]
+#[target_feature(enable = "avx2")]
+fn halves_256([lo, hi]: [__m256; 2]) -> f32 {
+    halves8(_mm256_add_ps(lo, hi))
+}
+
+/// The last three halvings of [`halves`], from the eight sums of lanes `i` and `i + 8`.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn halves8(h8: __m256) -> f32 {
     let h4 = _mm_add_ps(_mm256_castps256_ps128(h8), _mm256_extractf128_ps::<1>(h8));
     let h2 = _mm_add_ps(h4, _mm_movehl_ps(h4, h4));
     let h1 = _mm_add_ss(h2, _mm_movehdup_ps(h2));
