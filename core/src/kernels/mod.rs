@@ -67,8 +67,9 @@
 //! references, so the packed engine ([`crate::infer::Plan::packed`]) works, and is tested,
 //! everywhere.
 //!
-//! The f32 and packed kernels are not stored in the table: [`Kernels::matvec_f32`] and the
-//! packed calls pick them from the table's [`Isa`] where they are called. An image that never
+//! The f32 and packed kernels are not stored in the table: [`Kernels::matvec_f32`],
+//! [`Kernels::matmat_f32`] and the packed calls pick them from the table's [`Isa`] where they
+//! are called. An image that never
 //! runs the f32 engine, or never plans packed weights (an int8 firmware), links neither.
 //!
 //! # Between the kernels
@@ -78,7 +79,10 @@
 //! ([`reference::matvec_f32`], partial sums in a fixed order) is chosen by it: the x86 tables compile the same
 //! scalar code with AVX2 or AVX-512 enabled, so the compiler vectorizes it for those registers (a
 //! default `x86_64` build would otherwise get 128-bit SSE2 for them). IEEE arithmetic gives the
-//! same result in every lane, and the tests compare them with `==` anyway.
+//! same result in every lane, and the tests compare them with `==` anyway. The f32 engine's
+//! point layers that read earlier layers go through [`Kernels::matmat_f32`] instead, a block of
+//! points at a time: on x86 register tiles written with intrinsics (several rows and points
+//! sharing each load), the same partial sums in the same order, so the same bits.
 
 pub mod arm;
 pub mod packed;
