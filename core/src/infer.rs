@@ -519,6 +519,8 @@ impl<'m> Plan<'m> {
                             x: source_range(l.desc.sources, offs),
                             out: offs[i] + rows.start,
                         };
+                        // The plan's layout is one `dims` takes: every point computed.
+                        debug_assert_eq!(at.dims(w.len(), b.len(), acts.len()).2, n);
                         k.matmat_f32(w, b, acts, &at);
                         continue;
                     }

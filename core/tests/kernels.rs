@@ -1351,18 +1351,18 @@ fn f32_model_shapes() {
     }
 }
 
-/// A block of `points` rows of `stride` values for [`kernels::PointRows`]: the inputs at
-/// `x0..x0 + k`, the outputs at `out`, marker values everywhere else.
+/// Rows of `stride` values for [`kernels::PointRows`]: a block of `points` points and `extra`
+/// rows after it that are not the block's, the inputs at `x0..x0 + k`, the outputs `gap` values
+/// after them, marker values everywhere else.
 fn f32_block(
     vals: &[f32],
-    points: usize,
+    (points, extra): (usize, usize),
     stride: usize,
-    x0: usize,
-    k: usize,
+    (x0, k, gap): (usize, usize, usize),
 ) -> (Vec<f32>, kernels::PointRows) {
     const MARK: f32 = -7.25;
-    let mut rows = vec![MARK; points * stride];
-    for (p, row) in rows.chunks_mut(stride).enumerate() {
+    let mut rows = vec![MARK; (points + extra) * stride];
+    for (p, row) in rows.chunks_mut(stride.max(1)).enumerate() {
         for (j, v) in row.iter_mut().enumerate().skip(x0).take(k) {
             *v = vals[(p * 31 + j) % vals.len()];
         }
@@ -1371,7 +1371,7 @@ fn f32_block(
         stride,
         points,
         x: x0..x0 + k,
-        out: x0 + k,
+        out: x0 + k + gap,
     };
     (rows, at)
 }
@@ -1383,11 +1383,8 @@ fn check_matmat_f32(w: &[f32], bias: &[f32], rows: &[f32], at: &kernels::PointRo
     let mut want = rows.to_vec();
     reference::matmat_f32(w, bias, &mut want, at);
     let (k, o, points) = at.dims(w.len(), bias.len(), rows.len());
-    for (p, (row, got)) in rows
-        .chunks(at.stride)
-        .zip(want.chunks(at.stride))
-        .enumerate()
-    {
+    let stride = at.stride.max(1);
+    for (p, (row, got)) in rows.chunks(stride).zip(want.chunks(stride)).enumerate() {
         let mut alone = row.to_vec();
         if p < points && o > 0 {
             let x = &row[at.x.clone()];
@@ -1407,19 +1404,23 @@ proptest! {
 
     #[test]
     fn f32_matmat_matches_reference_bits(
-        (w, x, b, n) in shape_f32(0..150),
-        points in 0usize..11,
-        x0 in 0usize..3,
-        pad in 0usize..3,
+        (w, mut x, b, n) in shape_f32(0..150),
+        whole in proptest::bool::ANY,
+        (points, extra) in (0usize..11, 0usize..3),
+        (x0, gap, pad) in (0usize..3, 0usize..3, 0usize..3),
         short in 0usize..2,
     ) {
-        // The weights' rows as `shape_f32` made them (at most `n` outputs per point), the
-        // inputs' values spread over the block's points.
+        // The weights as `shape_f32` made them, read as rows of K (at most `n` outputs per
+        // point); half the cases with K cut to a multiple of 16 (no tails: the AVX-512 tiles'
+        // own finish). The inputs' values spread over the block's points.
+        if whole && x.len() >= 16 {
+            x.truncate(x.len() / 16 * 16);
+        }
         let k = x.len();
         let o = kernels::rows(k, w.len(), b.len(), n);
-        let stride = x0 + k + o + pad;
+        let stride = x0 + k + gap + o + pad;
         let vals = if x.is_empty() { vec![1.5] } else { x };
-        let (mut rows, at) = f32_block(&vals, points, stride, x0, k);
+        let (mut rows, at) = f32_block(&vals, (points, extra), stride, (x0, k, gap));
         // A last row cut short: that point is skipped when its outputs do not fit.
         let cut = rows.len().saturating_sub(short * (pad + 1));
         rows.truncate(cut);
@@ -1447,9 +1448,11 @@ fn f32_matmat_model_shapes_and_refusals() {
         b[0] = -0.0;
         let vals: Vec<f32> = (0..401).map(|i| (i as f32 - 200.0) / 50.0).collect();
         for points in [1, 3, 4, 5, 8, 9] {
-            let (rows, at) = f32_block(&vals, points, 1 + k + o, 1, k);
+            // Inputs from 1, outputs one value after them, a row after the block.
+            let (rows, at) = f32_block(&vals, (points, 1), 2 + k + o, (1, k, 1));
             check_matmat_f32(&w, &b, &rows, &at);
-            // Outputs overlapping the inputs, or past the stride: nothing written.
+            // Outputs overlapping the inputs, past the stride, or a reversed input range:
+            // nothing written.
             for bad in [
                 kernels::PointRows {
                     out: at.x.end.saturating_sub(1),
@@ -1459,11 +1462,13 @@ fn f32_matmat_model_shapes_and_refusals() {
                     stride: at.stride - 1,
                     ..at.clone()
                 },
+                kernels::PointRows {
+                    x: at.x.end + 1..at.x.start,
+                    ..at.clone()
+                },
             ] {
-                if k > 0 || bad.stride < at.stride {
-                    assert_eq!(bad.dims(w.len(), b.len(), rows.len()), (0, 0, 0), "{bad:?}");
-                    check_matmat_f32(&w, &b, &rows, &bad);
-                }
+                assert_eq!(bad.dims(w.len(), b.len(), rows.len()), (0, 0, 0), "{bad:?}");
+                check_matmat_f32(&w, &b, &rows, &bad);
             }
         }
     }

@@ -69,8 +69,8 @@
 //!
 //! The f32 and packed kernels are not stored in the table: [`Kernels::matvec_f32`],
 //! [`Kernels::matmat_f32`] and the packed calls pick them from the table's [`Isa`] where they
-//! are called. An image that never
-//! runs the f32 engine, or never plans packed weights (an int8 firmware), links neither.
+//! are called. An image that never runs the f32 engine, or never plans packed weights (an int8
+//! firmware), links neither.
 //!
 //! # Between the kernels
 //!
@@ -430,9 +430,9 @@ impl Kernels {
 
     /// [`reference::matmat_f32`], bit-exact (so [`Kernels::matvec_f32`] for each point): the
     /// f32 engine's point layers, a block of points at a time. The x86 tables run register
-    /// tiles (four rows by four points on AVX-512, [`x86::matmat_f32_avx512`]; one row by four
-    /// points on AVX2, [`x86::matmat_f32_avx2`]); the others run [`Kernels::matvec_f32`]
-    /// point by point.
+    /// tiles (four rows by four points on AVX-512, `x86::matmat_f32_avx512`; one row by four
+    /// points on AVX2, `x86::matmat_f32_avx2`); the others run [`Kernels::matvec_f32`] point
+    /// by point.
     #[inline]
     pub fn matmat_f32(&self, w: &[f32], bias: &[f32], rows: &mut [f32], at: &PointRows) {
         #[cfg(target_arch = "x86_64")]

@@ -156,8 +156,9 @@ pub fn matvec_f32(w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]) {
 }
 
 /// The rows of a block of points that [`matmat_f32`] reads and writes: point `p`'s row is
-/// `rows[p·stride..][..stride]`, its inputs `x` (a range of the row) and its outputs the `O`
-/// values from `out` (`O` the rows of the weights and bias). The f32 engine's layout: each
+/// `rows[p·stride..]`, up to `stride` values (the last row may end after its outputs), its
+/// inputs `x` (a range of the row) and its outputs the `O` values from `out` (`O` the rows of
+/// the weights and bias). The f32 engine's layout: each
 /// point's activations in one row, a layer reading earlier layers' outputs.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct PointRows {
@@ -174,10 +175,12 @@ pub struct PointRows {
 impl PointRows {
     /// `(K, O, P)`: the inputs per point, the outputs [`matmat_f32`] writes per point (`O =
     /// min(bias.len(), w_len / K)`, `bias.len()` for `K = 0`) and the points it computes
-    /// (those whose row holds the outputs); all 0 unless the inputs end before the outputs
-    /// start and the outputs end within the stride.
+    /// (those whose row holds the outputs); all 0 unless the input range is a range (start
+    /// ≤ end), the inputs end before the outputs start and the outputs end within the stride.
     pub fn dims(&self, w_len: usize, bias_len: usize, rows_len: usize) -> (usize, usize, usize) {
-        let k = self.x.end.saturating_sub(self.x.start);
+        let Some(k) = self.x.end.checked_sub(self.x.start) else {
+            return (0, 0, 0);
+        };
         let o = w_len.checked_div(k).map_or(bias_len, |r| r.min(bias_len));
         match self.out.checked_add(o) {
             Some(end) if self.x.end <= self.out && end <= self.stride && o > 0 => {
@@ -223,8 +226,8 @@ pub(crate) fn matmat_f32_by(
     }
 }
 
-/// One row's result from its 16 partial sums as [`matvec_f32`] finishes it (`sum_lanes`, the
-/// tail's dot product, the bias), for a kernel that has summed the lanes itself.
+/// One row's result as [`matvec_f32`] finishes it, from the sum of its 16 partial sums
+/// (`sum_lanes`, which a kernel computes itself): then the tail's dot product, then the bias.
 #[inline(always)]
 pub(crate) fn finish_lanes(sum: f32, w_tail: &[f32], x_tail: &[f32], b: f32) -> f32 {
     let tail = w_tail

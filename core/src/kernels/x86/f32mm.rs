@@ -22,7 +22,7 @@ const LANES: usize = 16;
 
 /// Some rows of a layer: their weights (`k` per row) and bias.
 #[derive(Clone, Copy)]
-struct Rows<'a> {
+struct WeightRows<'a> {
     w: &'a [f32],
     bias: &'a [f32],
     k: usize,
@@ -46,7 +46,9 @@ macro_rules! f32_tiles {
             /// Points per register tile.
             const PT: usize = $pt;
 
-            #[doc = concat!("[`crate::kernels::reference::matmat_f32`], bit-exact, with `", $features, "`.")]
+            #[doc = concat!(
+                "[`crate::kernels::reference::matmat_f32`], bit-exact, with `", $features, "`."
+            )]
             ///
             /// # Safety
             #[doc = concat!("The CPU must support `", $features, "`.")]
@@ -57,7 +59,8 @@ macro_rules! f32_tiles {
                     return;
                 }
                 if k == 0 {
-                    // `matvec_f32` gives the bias itself (not `0 + 0 + b`, which loses a -0.0).
+                    // `matvec_f32` gives the bias itself (not `0 + 0 + b`, which loses a
+                    // -0.0).
                     for row in rows.chunks_mut(at.stride).take(points) {
                         row[at.out..][..o].copy_from_slice(&bias[..o]);
                     }
@@ -69,7 +72,11 @@ macro_rules! f32_tiles {
                     let mut o0 = 0;
                     while o0 < o {
                         let no = (o - o0).min(RT);
-                        let l = Rows { w: &w[o0 * k..(o0 + no) * k], bias: &bias[o0..o0 + no], k };
+                        let l = WeightRows {
+                            w: &w[o0 * k..(o0 + no) * k],
+                            bias: &bias[o0..o0 + no],
+                            k,
+                        };
                         let (at0, n) = ((p0, o0), (no, np));
                         match n {
                             (RT, PT) => tile::<RT, PT>(l, rows, at, at0),
@@ -89,15 +96,20 @@ macro_rules! f32_tiles {
             #[inline]
             #[target_feature(enable = $features)]
             fn tiles_of<const R: usize, const P: usize>(
-                l: Rows<'_>,
+                l: WeightRows<'_>,
                 rows: &mut [f32],
                 at: &PointRows,
                 (p0, o0): (usize, usize),
                 (nr, np): (usize, usize),
             ) {
+                debug_assert!(nr.is_multiple_of(R) && np.is_multiple_of(P));
                 let k = l.k;
                 for r in (0..nr).step_by(R) {
-                    let lr = Rows { w: &l.w[r * k..(r + R) * k], bias: &l.bias[r..r + R], k };
+                    let lr = WeightRows {
+                        w: &l.w[r * k..(r + R) * k],
+                        bias: &l.bias[r..r + R],
+                        k,
+                    };
                     for p in (p0..p0 + np).step_by(P) {
                         tile::<R, P>(lr, rows, at, (p, o0 + r));
                     }
@@ -109,7 +121,7 @@ macro_rules! f32_tiles {
             #[inline]
             #[target_feature(enable = $features)]
             fn tile<const R: usize, const P: usize>(
-                Rows { w, bias, k }: Rows<'_>,
+                WeightRows { w, bias, k }: WeightRows<'_>,
                 rows: &mut [f32],
                 at: &PointRows,
                 (p0, o0): (usize, usize),
@@ -151,7 +163,8 @@ macro_rules! f32_tiles {
                     if k.is_multiple_of(LANES) {
                         Some(acc)
                     } else {
-                        for (((sums, acc), ws), &b) in sums.iter_mut().zip(&acc).zip(&ws).zip(bias) {
+                        let rows = sums.iter_mut().zip(&acc).zip(&ws).zip(bias);
+                        for (((sums, acc), ws), &b) in rows {
                             for ((s, &a), xs) in sums.iter_mut().zip(acc).zip(&xs) {
                                 *s = finish_lanes($halves(a), ws.1, xs.1, b);
                             }
@@ -194,7 +207,7 @@ f32_tiles! {
 // one by five or six 27.6–28.8.
 f32_tiles! {
     ymm, matmat_f32_avx2, "avx2", [__m256; 2], rows: 1, points: 4,
-    zero: [_mm256_setzero_ps(); 2], load: load256, madd: madd256, halves: halves_256,
+    zero: [_mm256_setzero_ps(); 2], load: load256, madd: madd256, halves: halves2x256,
     fast: no_fast,
 }
 
@@ -228,10 +241,11 @@ fn fast512<const R: usize, const P: usize>(
         _mm512_extractf32x4_ps::<3>(v),
     ];
     for (i, l) in lanes.into_iter().enumerate() {
-        let y = &mut rows[(p0 + i) * at.stride + at.out + o0..];
-        if let Some(y) = y.first_chunk_mut::<4>() {
-            store4(y, _mm_add_ps(_mm_add_ps(l, _mm_setzero_ps()), b));
-        }
+        let mut y = [0.0f32; 4];
+        store4(&mut y, _mm_add_ps(_mm_add_ps(l, _mm_setzero_ps()), b));
+        // Inside `rows`, as in `tile` ([`PointRows::dims`] checked it).
+        let at_y = (p0 + i) * at.stride + at.out + o0;
+        rows[at_y..at_y + 4].copy_from_slice(&y);
     }
     true
 }
@@ -317,7 +331,7 @@ fn halves(a: __m512) -> f32 {
 /// [`halves`] on AVX2's two registers (lanes 0–7 and 8–15).
 #[inline]
 #[target_feature(enable = "avx2")]
-fn halves_256([lo, hi]: [__m256; 2]) -> f32 {
+fn halves2x256([lo, hi]: [__m256; 2]) -> f32 {
     halves8(_mm256_add_ps(lo, hi))
 }
 
@@ -333,8 +347,8 @@ fn halves8(h8: __m256) -> f32 {
 
 /// [`halves`] of 16 registers at once, `a[r][p]`: 128-bit lane `p` of the result is
 /// `[halves(a[0][p]), halves(a[1][p]), halves(a[2][p]), halves(a[3][p])]`, every lane added
-/// to the same lane as in [`halves`] (a transposing tree: 30 shuffles and adds for 16 sums,
-/// where [`halves`] takes seven instructions for one). The float twin of the int8 kernels'
+/// to the same lane as in [`halves`] (a transposing tree: 45 shuffles and adds for 16 sums,
+/// where [`halves`] takes eight instructions for one). The float twin of the int8 kernels'
 /// `hsum16_512` (`matmat.rs`): the same shuffles, whose pairs of lanes happen to be the
 /// reference's halving order, with float adds.
 #[inline]
