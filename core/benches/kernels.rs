@@ -166,12 +166,49 @@ fn pooled_conv5(c: &mut Criterion) {
     g.finish();
 }
 
+fn matmat_f32(c: &mut Criterion) {
+    // The f32 engine's point layers that read earlier layers, as it runs them: a block of 24
+    // points (each point's activations in one row) through a tile of rows (`F32_TILE_WEIGHTS`,
+    // 4,096 weights), by `matvec_f32` point by point and by each table's `matmat_f32`.
+    use evpose_core::kernels::PointRows;
+    let p = 24;
+    for (k, n) in [(64, 64), (128, 32), (512, 8)] {
+        let w = values(k * n, 7, |v| (v % 2001) as f32 / 1000.0 - 1.0);
+        let bias = values(n, 9, |v| (v % 201) as f32 / 100.0 - 1.0);
+        let stride = k + n;
+        let mut rows = values(p * stride, 8, |v| (v % 401) as f32 / 200.0 - 1.0);
+        let at = PointRows {
+            stride,
+            points: p,
+            x: 0..k,
+            out: k,
+        };
+        let mut g = c.benchmark_group(format!("matmat_f32/K={k} out={n} P={p}"));
+        g.throughput(Throughput::Elements((k * n * p) as u64));
+        for kern in kernels_here() {
+            g.bench_function(format!("matvec×P/{}", kern.name()), |b| {
+                b.iter(|| {
+                    for row in rows.chunks_mut(stride) {
+                        let (x, y) = row.split_at_mut(k);
+                        kern.matvec_f32(&w, black_box(x), &bias, y);
+                    }
+                })
+            });
+            g.bench_function(kern.name(), |b| {
+                b.iter(|| kern.matmat_f32(&w, &bias, black_box(&mut rows), &at))
+            });
+        }
+        g.finish();
+    }
+}
+
 criterion_group!(
     benches,
     matvec_i8,
     matvec_i16,
     matmat_i8,
     packed_layers,
-    pooled_conv5
+    pooled_conv5,
+    matmat_f32
 );
 criterion_main!(benches);
