@@ -99,7 +99,7 @@ fn accumulate(acc: &mut [f32; F32_LANES], w: &[f32; F32_LANES], x: &[f32; F32_LA
 /// index order, and the bias.
 #[inline(always)]
 fn finish_row(acc: [f32; F32_LANES], w_tail: &[f32], x_tail: &[f32], b: f32) -> f32 {
-    finish_lanes(sum_lanes(acc), w_tail, x_tail, b)
+    finish_lanes(sum_lanes(acc), tail_dot(w_tail, x_tail), b)
 }
 
 /// f32 version: `out[o] = Σ_j w[o·K + j] · x[j] + bias[o]` for the rows the three slices share
@@ -158,8 +158,8 @@ pub fn matvec_f32(w: &[f32], x: &[f32], bias: &[f32], out: &mut [f32]) {
 /// The rows of a block of points that [`matmat_f32`] reads and writes: point `p`'s row is
 /// `rows[p·stride..]`, up to `stride` values (the last row may end after its outputs), its
 /// inputs `x` (a range of the row) and its outputs the `O` values from `out` (`O` the rows of
-/// the weights and bias). The f32 engine's layout: each
-/// point's activations in one row, a layer reading earlier layers' outputs.
+/// the weights and bias). The f32 engine's layout: each point's activations in one row, a
+/// layer reading earlier layers' outputs.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct PointRows {
     /// Distance between two points' rows, in values.
@@ -226,14 +226,21 @@ pub(crate) fn matmat_f32_by(
     }
 }
 
-/// One row's result as [`matvec_f32`] finishes it, from the sum of its 16 partial sums
-/// (`sum_lanes`, which a kernel computes itself): then the tail's dot product, then the bias.
+/// The dot product of a row's last `K mod 16` elements, in index order from 0.0 (0.0 when
+/// there are none), as [`matvec_f32`] computes it.
 #[inline(always)]
-pub(crate) fn finish_lanes(sum: f32, w_tail: &[f32], x_tail: &[f32], b: f32) -> f32 {
-    let tail = w_tail
+pub(crate) fn tail_dot(w_tail: &[f32], x_tail: &[f32]) -> f32 {
+    w_tail
         .iter()
         .zip(x_tail)
-        .fold(0.0, |acc, (&w, &x)| acc + w * x);
+        .fold(0.0, |acc, (&w, &x)| acc + w * x)
+}
+
+/// One row's result as [`matvec_f32`] finishes it, from the sum of its 16 partial sums
+/// (`sum_lanes`, which a kernel computes itself) and its [`tail_dot`]: the tail, then the
+/// bias.
+#[inline(always)]
+pub(crate) fn finish_lanes(sum: f32, tail: f32, b: f32) -> f32 {
     sum + tail + b
 }
 

@@ -15,7 +15,7 @@
 
 use core::arch::x86_64::*;
 
-use crate::kernels::reference::{finish_lanes, PointRows};
+use crate::kernels::reference::{finish_lanes, tail_dot, PointRows};
 
 /// Partial sums per row and point (one 512-bit register, two 256-bit ones).
 const LANES: usize = 16;
@@ -127,9 +127,10 @@ macro_rules! f32_tiles {
                 (p0, o0): (usize, usize),
             ) {
                 let full = k / LANES;
-                let mut sums = [[0.0f32; P]; R];
-                // The sums, left in registers for a tile-wide finish where no row has a tail.
-                let whole = {
+                // Each row and point's tail dot product (0.0 without tails), taken while the
+                // inputs are borrowed; the partial sums stay in registers for the finish.
+                let mut tails = [[0.0f32; P]; R];
+                let acc = {
                     // Every slice cut to `full` steps, so that the loop keeps few bounds
                     // checks.
                     let mut ws: [(&[[f32; LANES]], &[f32]); R] = [(&[], &[]); R];
@@ -160,26 +161,22 @@ macro_rules! f32_tiles {
                             }
                         }
                     }
-                    if k.is_multiple_of(LANES) {
-                        Some(acc)
-                    } else {
-                        let rows = sums.iter_mut().zip(&acc).zip(&ws).zip(bias);
-                        for (((sums, acc), ws), &b) in rows {
-                            for ((s, &a), xs) in sums.iter_mut().zip(acc).zip(&xs) {
-                                *s = finish_lanes($halves(a), ws.1, xs.1, b);
+                    if !k.is_multiple_of(LANES) {
+                        for (tails, ws) in tails.iter_mut().zip(&ws) {
+                            for (t, xs) in tails.iter_mut().zip(&xs) {
+                                *t = tail_dot(ws.1, xs.1);
                             }
                         }
-                        None
                     }
+                    acc
                 };
-                if let Some(acc) = whole {
-                    if $fast(&acc, bias, rows, at, (p0, o0)) {
-                        return;
-                    }
-                    for ((sums, acc), &b) in sums.iter_mut().zip(&acc).zip(bias) {
-                        for (s, &a) in sums.iter_mut().zip(acc) {
-                            *s = finish_lanes($halves(a), &[], &[], b);
-                        }
+                if k.is_multiple_of(LANES) && $fast(&acc, bias, rows, at, (p0, o0)) {
+                    return;
+                }
+                let mut sums = [[0.0f32; P]; R];
+                for (((sums, acc), tails), &b) in sums.iter_mut().zip(&acc).zip(&tails).zip(bias) {
+                    for ((s, &a), &t) in sums.iter_mut().zip(acc).zip(tails) {
+                        *s = finish_lanes($halves(a), t, b);
                     }
                 }
                 for (i, p) in (p0..p0 + P).enumerate() {
@@ -212,8 +209,9 @@ f32_tiles! {
 }
 
 /// The AVX-512 tile's finish when the tile is four rows by four points (the caller calls it
-/// only where no row has a tail): a row and point is `(Σ + 0.0) + b` (`finish_lanes` with an empty tail), four
-/// rows of a point at a time, the 16 sums from one transposing tree ([`halves16`]).
+/// only where no row has a tail): a row and point is `(Σ + 0.0) + b` (`finish_lanes` with
+/// the empty tail's 0.0), four rows of a point at a time, the 16 sums from one transposing
+/// tree ([`halves16`]).
 #[inline]
 #[target_feature(enable = "avx2,avx512f")]
 fn fast512<const R: usize, const P: usize>(
