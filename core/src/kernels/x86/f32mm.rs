@@ -10,8 +10,8 @@
 //! reference, and the halving is done on the registers in the same order. On AVX-512 a tile is
 //! four rows by four points: per step of 16 inputs it loads four weight vectors and four input
 //! vectors for 16 products, where point by point
-//! ([`crate::kernels::reference::matvec_f32`], four rows at a time) each product needed a load
-//! of its own and every output its own horizontal sum of scalars.
+//! ([`crate::kernels::reference::matvec_f32`], four rows at a time) every weight vector is
+//! loaded once per point and every output reduced alone.
 
 use core::arch::x86_64::*;
 
