@@ -605,6 +605,96 @@ fn hsum_512(a: __m512i) -> i32 {
     hsum_256(fold_512(a))
 }
 
+/// Lane-wise addition for [`tree16_512`]: i32 (wrapping) or f32, on the register's bits.
+trait Add16 {
+    /// `a + b` per 32-bit lane.
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F.
+    unsafe fn add(a: __m512i, b: __m512i) -> __m512i;
+}
+
+/// i32 lanes, wrapping (the int8 kernels' sums).
+struct AddI32;
+
+impl Add16 for AddI32 {
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn add(a: __m512i, b: __m512i) -> __m512i {
+        _mm512_add_epi32(a, b)
+    }
+}
+
+/// f32 lanes (the f32 kernel's partial sums).
+struct AddF32;
+
+impl Add16 for AddF32 {
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn add(a: __m512i, b: __m512i) -> __m512i {
+        _mm512_castps_si512(_mm512_add_ps(
+            _mm512_castsi512_ps(a),
+            _mm512_castsi512_ps(b),
+        ))
+    }
+}
+
+/// The lane sums of 16 registers `a[r][q]` in one transposing tree: 128-bit lane `q` of the
+/// result is `[Σa[0][q], Σa[1][q], Σa[2][q], Σa[3][q]]`, each sum taken as `sum_lanes` of the
+/// f32 reference takes it (lanes `i` and `i + 8`, then `i + 4`, `i + 2`, `i + 1`): 30 shuffles
+/// (on bits, the same for either lane type) and 15 adds of `A`.
+#[inline]
+#[target_feature(enable = "avx512f")]
+fn tree16_512<A: Add16>(a: [[__m512i; 4]; 4]) -> __m512i {
+    // Lanes `i` and `i + 8`: [a.l0 + a.l2, a.l1 + a.l3, b.l0 + b.l2, b.l1 + b.l3] (128-bit
+    // lanes).
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    fn eighths<A: Add16>(a: __m512i, b: __m512i) -> __m512i {
+        let (lo, hi) = (
+            _mm512_shuffle_i64x2::<0b01_00_01_00>(a, b),
+            _mm512_shuffle_i64x2::<0b11_10_11_10>(a, b),
+        );
+        // SAFETY: compiled with AVX-512F.
+        unsafe { A::add(lo, hi) }
+    }
+    // Lanes `i` and `i + 4`: from [A0 A1 B0 B1] and [C0 C1 D0 D1], [A0 + A1, B0 + B1, C0 + C1,
+    // D0 + D1].
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    fn fourths<A: Add16>(c: __m512i, d: __m512i) -> __m512i {
+        let (even, odd) = (
+            _mm512_shuffle_i64x2::<0b10_00_10_00>(c, d),
+            _mm512_shuffle_i64x2::<0b11_01_11_01>(c, d),
+        );
+        // SAFETY: compiled with AVX-512F.
+        unsafe { A::add(even, odd) }
+    }
+    // e[r], 128-bit lane q: the four partial sums of a[r][q] left after two halvings.
+    let mut e = [_mm512_setzero_si512(); 4];
+    for (e, a) in e.iter_mut().zip(&a) {
+        *e = fourths::<A>(eighths::<A>(a[0], a[1]), eighths::<A>(a[2], a[3]));
+    }
+    // Lanes `i` and `i + 2`, per 128-bit lane: [e0.0 + e0.2, e1.0 + e1.2, e0.1 + e0.3,
+    // e1.1 + e1.3], the same for e2 and e3; then lanes `i` and `i + 1`, the first pair of each
+    // 128-bit lane of t01 and t23 against the second.
+    // SAFETY: compiled with AVX-512F.
+    unsafe {
+        let t01 = A::add(
+            _mm512_unpacklo_epi32(e[0], e[1]),
+            _mm512_unpackhi_epi32(e[0], e[1]),
+        );
+        let t23 = A::add(
+            _mm512_unpacklo_epi32(e[2], e[3]),
+            _mm512_unpackhi_epi32(e[2], e[3]),
+        );
+        A::add(
+            _mm512_unpacklo_epi64(t01, t23),
+            _mm512_unpackhi_epi64(t01, t23),
+        )
+    }
+}
+
 /// `128 · Σ x`, wrapping: the correction for feeding `w + 128` to `vpdpbusd`.
 #[inline(always)]
 fn vnni_correction(x: &[i8]) -> i32 {

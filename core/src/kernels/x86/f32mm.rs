@@ -346,52 +346,16 @@ fn halves8(h8: __m256) -> f32 {
 /// [`halves`] of 16 registers at once, `a[r][p]`: 128-bit lane `p` of the result is
 /// `[halves(a[0][p]), halves(a[1][p]), halves(a[2][p]), halves(a[3][p])]`, every lane added
 /// to the same lane as in [`halves`] (a transposing tree: 45 shuffles and adds for 16 sums,
-/// where [`halves`] takes eight instructions for one). The float twin of the int8 kernels'
-/// `hsum16_512` (`matmat.rs`): the same shuffles, whose pairs of lanes happen to be the
-/// reference's halving order, with float adds.
+/// where [`halves`] takes eight instructions for one): the int8 kernels' tree
+/// ([`super::tree16_512`]) with f32 adds.
 #[inline]
 #[target_feature(enable = "avx2,avx512f")]
 fn halves16(a: [[__m512; 4]; 4]) -> __m512 {
-    // Lanes `i` and `i + 8`: [a.l0 + a.l2, a.l1 + a.l3, b.l0 + b.l2, b.l1 + b.l3] (128-bit
-    // lanes).
-    #[inline]
-    #[target_feature(enable = "avx512f")]
-    fn eighths(a: __m512, b: __m512) -> __m512 {
-        _mm512_add_ps(
-            _mm512_shuffle_f32x4::<0b01_00_01_00>(a, b),
-            _mm512_shuffle_f32x4::<0b11_10_11_10>(a, b),
-        )
+    let mut bits = [[_mm512_setzero_si512(); 4]; 4];
+    for (b, a) in bits.iter_mut().zip(&a) {
+        for (b, &a) in b.iter_mut().zip(a) {
+            *b = _mm512_castps_si512(a);
+        }
     }
-    // Lanes `i` and `i + 4`: from [A0 A1 B0 B1] and [C0 C1 D0 D1], [A0 + A1, B0 + B1, C0 + C1,
-    // D0 + D1].
-    #[inline]
-    #[target_feature(enable = "avx512f")]
-    fn fourths(c: __m512, d: __m512) -> __m512 {
-        _mm512_add_ps(
-            _mm512_shuffle_f32x4::<0b10_00_10_00>(c, d),
-            _mm512_shuffle_f32x4::<0b11_01_11_01>(c, d),
-        )
-    }
-    // e[r], 128-bit lane p: the four partial sums of a[r][p] left after two halvings.
-    let mut e = [_mm512_setzero_ps(); 4];
-    for (e, a) in e.iter_mut().zip(&a) {
-        *e = fourths(eighths(a[0], a[1]), eighths(a[2], a[3]));
-    }
-    // Lanes `i` and `i + 2`, per 128-bit lane: [e0.0 + e0.2, e1.0 + e1.2, e0.1 + e0.3,
-    // e1.1 + e1.3], the same for e2 and e3.
-    let t01 = _mm512_add_ps(
-        _mm512_unpacklo_ps(e[0], e[1]),
-        _mm512_unpackhi_ps(e[0], e[1]),
-    );
-    let t23 = _mm512_add_ps(
-        _mm512_unpacklo_ps(e[2], e[3]),
-        _mm512_unpackhi_ps(e[2], e[3]),
-    );
-    // Lanes `i` and `i + 1`: the first pair of each 128-bit lane of t01 and t23 against the
-    // second.
-    let (t01, t23) = (_mm512_castps_pd(t01), _mm512_castps_pd(t23));
-    _mm512_add_ps(
-        _mm512_castpd_ps(_mm512_unpacklo_pd(t01, t23)),
-        _mm512_castpd_ps(_mm512_unpackhi_pd(t01, t23)),
-    )
+    _mm512_castsi512_ps(super::tree16_512::<super::AddF32>(bits))
 }

@@ -12,48 +12,13 @@ const GROUP: usize = 16;
 /// The sums of 16 vectors, `a[r][q]` for four rows `r` and four points `q`: 128-bit lane `q` of
 /// the result is `[Σa[0][q], Σa[1][q], Σa[2][q], Σa[3][q]]`.
 ///
-/// A tree of 45 shuffles and adds, none of them multi-µop; four [`hsum4_512`] take 52
-/// instructions, 12 of them `vphaddd`. (Measured a few per cent faster at `P = 16`; replacing
-/// one shuffle per pair by a blend measured no faster.)
+/// A tree of 45 shuffles and adds ([`tree16_512`]), none of them multi-µop; four [`hsum4_512`]
+/// take 52 instructions, 12 of them `vphaddd`. (Measured a few per cent faster at `P = 16`;
+/// replacing one shuffle per pair by a blend measured no faster.)
 #[inline]
 #[target_feature(enable = "avx512f")]
 fn hsum16_512(a: [[__m512i; 4]; 4]) -> __m512i {
-    // [a.l0 + a.l2, a.l1 + a.l3, b.l0 + b.l2, b.l1 + b.l3] (128-bit lanes).
-    #[inline]
-    #[target_feature(enable = "avx512f")]
-    fn halve(a: __m512i, b: __m512i) -> __m512i {
-        _mm512_add_epi32(
-            _mm512_shuffle_i64x2::<0b01_00_01_00>(a, b),
-            _mm512_shuffle_i64x2::<0b11_10_11_10>(a, b),
-        )
-    }
-    // From [A0 A1 B0 B1] and [C0 C1 D0 D1]: [A0 + A1, B0 + B1, C0 + C1, D0 + D1].
-    #[inline]
-    #[target_feature(enable = "avx512f")]
-    fn quarter(c: __m512i, d: __m512i) -> __m512i {
-        _mm512_add_epi32(
-            _mm512_shuffle_i64x2::<0b10_00_10_00>(c, d),
-            _mm512_shuffle_i64x2::<0b11_01_11_01>(c, d),
-        )
-    }
-    // e[r], lane q: four partial sums of a[r][q].
-    let mut e = [_mm512_setzero_si512(); 4];
-    for r in 0..4 {
-        e[r] = quarter(halve(a[r][0], a[r][1]), halve(a[r][2], a[r][3]));
-    }
-    // Per lane: [e0.0 + e0.2, e1.0 + e1.2, e0.1 + e0.3, e1.1 + e1.3], the same for e2, e3.
-    let t01 = _mm512_add_epi32(
-        _mm512_unpacklo_epi32(e[0], e[1]),
-        _mm512_unpackhi_epi32(e[0], e[1]),
-    );
-    let t23 = _mm512_add_epi32(
-        _mm512_unpacklo_epi32(e[2], e[3]),
-        _mm512_unpackhi_epi32(e[2], e[3]),
-    );
-    _mm512_add_epi32(
-        _mm512_unpacklo_epi64(t01, t23),
-        _mm512_unpackhi_epi64(t01, t23),
-    )
+    tree16_512::<AddI32>(a)
 }
 
 /// Four rows by `Q` points of 512-bit accumulators to `Q` vectors of four row sums.
