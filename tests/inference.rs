@@ -226,59 +226,71 @@ fn int8_engine_gives_identical_integers_with_every_kernel_set() {
 fn packed_int8_engine_gives_identical_integers_with_every_kernel_set_and_block() {
     // The packed path with every table: native packed kernels where the CPU has them, the
     // packed reference elsewhere (so this runs on any CI machine), against the row-major
-    // engine with the reference kernels.
+    // engine with the reference kernels. Three kinds of heads, which run packed too: the small
+    // model's 15-bit heads (D = 128), the bundled MCU model's (D = 32) and a version 1 blob's
+    // int8 heads.
     use evpose_core::kernels::Kernels;
-    use evpose_core::{pack_point_layers, packed_bytes, scratch_words_for_block, Model, Plan};
+    use evpose_core::{pack_layers, packed_bytes, scratch_words_for_block, Model, Plan};
     let case = small();
     let net = model::import_onnx(&case.model).unwrap();
-    let blob = int8_blob(&net, &case.inputs[..1]);
-    let m = Model::parse(blob.bytes()).unwrap();
-    let mut buf = vec![0u8; packed_bytes(&m)];
-    let layout = pack_point_layers(&m, &mut buf).unwrap();
-    let packed = layout.weights(&m, &buf).unwrap();
+    let small_blob = int8_blob(&net, &case.inputs[..1]);
+    let mcu_blob = AlignedBlob::new(evpose_host::assets::DEFAULT_MODEL);
+    let v1_blob =
+        AlignedBlob::new(&std::fs::read(fixtures().join("pointnet-small-v1.evq")).unwrap());
     let input = &case.inputs[4][..1000];
-    let outputs = || (vec![0; 13 * 346], vec![0; 13 * 260]);
-    let (mut wx, mut wy) = outputs();
-    let words = scratch_words_for_block(&m, 1);
-    Plan::new(&m, Kernels::reference(), words)
-        .unwrap()
-        .run_i8(input, &mut vec![0; words], &mut wx, &mut wy)
-        .unwrap();
     let mut tested = Vec::new();
-    for (_, k) in supported_kernel_sets() {
-        // Up to `MAX_BLOCK` (96): blocks of whole AMX tile pairs (32, 96) and not.
-        for block in [1, 2, 5, 6, 7, 13, 24, 32, 96] {
-            let (mut x, mut y) = outputs();
-            let mut scratch = vec![0; scratch_words_for_block(&m, block)];
-            let plan = Plan::packed(&m, k, &packed, scratch.len()).unwrap();
-            assert!(plan.is_packed() && plan.block() == block);
-            plan.run_i8(input, &mut scratch, &mut x, &mut y).unwrap();
-            assert_eq!((&x, &y), (&wx, &wy), "{} block {block}", k.name());
-        }
-        // Scratch that starts at different offsets from a cache line, exactly the plan's
-        // words (the activation rows stay where they fall) and `ALIGN_WORDS` more (the engine
-        // moves them to a line): the integers stay the same.
-        let words = scratch_words_for_block(&m, 96);
-        let plan = Plan::packed(&m, k, &packed, words).unwrap();
-        let mut big = vec![0; words + evpose_core::infer::ALIGN_WORDS + 16];
-        for skip in [0, 1, 3, 7, 12, 16] {
-            for lent in [words, words + evpose_core::infer::ALIGN_WORDS] {
+    for (name, blob) in [("small", &small_blob), ("mcu", &mcu_blob), ("v1", &v1_blob)] {
+        let m = Model::parse(blob.bytes()).unwrap();
+        let mut buf = vec![0u8; packed_bytes(&m)];
+        let layout = pack_layers(&m, &mut buf).unwrap();
+        let packed = layout.weights(&m, &buf).unwrap();
+        let words = scratch_words_for_block(&m, 1);
+        let reference = Plan::new(&m, Kernels::reference(), words).unwrap();
+        let outputs = || {
+            (
+                vec![0; reference.out_x_len()],
+                vec![0; reference.out_y_len()],
+            )
+        };
+        let (mut wx, mut wy) = outputs();
+        reference
+            .run_i8(input, &mut vec![0; words], &mut wx, &mut wy)
+            .unwrap();
+        for (_, k) in supported_kernel_sets() {
+            // Up to `MAX_BLOCK` (96): blocks of whole AMX tile pairs (32, 96) and not.
+            for block in [1, 2, 5, 6, 7, 13, 24, 32, 96] {
                 let (mut x, mut y) = outputs();
-                let scratch = &mut big[skip..][..lent];
-                plan.run_i8(input, scratch, &mut x, &mut y).unwrap();
-                assert_eq!(
-                    (&x, &y),
-                    (&wx, &wy),
-                    "{}, skip {skip}, {lent} words",
-                    k.name()
-                );
+                let mut scratch = vec![0; scratch_words_for_block(&m, block)];
+                let plan = Plan::packed(&m, k, &packed, scratch.len()).unwrap();
+                assert!(plan.is_packed() && plan.block() == block);
+                plan.run_i8(input, &mut scratch, &mut x, &mut y).unwrap();
+                // `assert!`, not `assert_eq!`: a failure names the case, not 8,000 integers.
+                assert!(x == wx && y == wy, "{name}, {} block {block}", k.name());
             }
+            // Scratch that starts at different offsets from a cache line, exactly the plan's
+            // words (the activation rows stay where they fall) and `ALIGN_WORDS` more (the
+            // engine moves them to a line): the integers stay the same.
+            let words = scratch_words_for_block(&m, 96);
+            let plan = Plan::packed(&m, k, &packed, words).unwrap();
+            let mut big = vec![0; words + evpose_core::infer::ALIGN_WORDS + 16];
+            for skip in [0, 1, 3, 7, 12, 16] {
+                for lent in [words, words + evpose_core::infer::ALIGN_WORDS] {
+                    let (mut x, mut y) = outputs();
+                    let scratch = &mut big[skip..][..lent];
+                    plan.run_i8(input, scratch, &mut x, &mut y).unwrap();
+                    assert!(
+                        x == wx && y == wy,
+                        "{name}, {}, skip {skip}, {lent} words",
+                        k.name()
+                    );
+                }
+            }
+            tested.push(format!(
+                "{name} {}{}",
+                k.name(),
+                if k.has_packed() { " (native)" } else { "" }
+            ));
         }
-        tested.push(format!(
-            "{}{}",
-            k.name(),
-            if k.has_packed() { " (native)" } else { "" }
-        ));
     }
     eprintln!("packed engine tested with: {}", tested.join(", "));
 }
@@ -394,19 +406,19 @@ fn host_runner_over_row_major_weights_gives_the_packed_runners_integers() {
 #[test]
 fn packed_weights_of_another_model_or_in_another_buffer_are_errors() {
     use evpose_core::kernels::Kernels;
-    use evpose_core::{pack_point_layers, packed_bytes, scratch_words, InferError, Plan};
+    use evpose_core::{pack_layers, packed_bytes, scratch_words, InferError, Plan};
     with_two_small_models(|ma, mb| {
         let need = packed_bytes(ma);
         assert!(need > 0);
         assert_eq!(
-            pack_point_layers(ma, &mut vec![0; need - 1]).unwrap_err(),
+            pack_layers(ma, &mut vec![0; need - 1]).unwrap_err(),
             InferError::PackBuffer {
                 needed: need,
                 got: need - 1
             }
         );
         let mut buf = vec![0u8; need];
-        let layout = pack_point_layers(ma, &mut buf).unwrap();
+        let layout = pack_layers(ma, &mut buf).unwrap();
         // The layout of model a, asked for model b.
         assert_eq!(
             layout.weights(mb, &buf).unwrap_err(),

@@ -254,10 +254,10 @@ const F32_TILE_WEIGHTS: usize = 4096;
 pub struct Plan<'m> {
     model: &'m Model<'m>,
     kernels: Kernels,
-    /// The packed weights and the function that runs a packed layer: set by [`Plan::packed`]
-    /// only, so that an image which never plans packed weights (an MCU's) links no packed
-    /// kernel.
-    packed: Option<(&'m PackedWeights<'m>, PackedLayerFn)>,
+    /// The packed weights and the functions that run a packed layer and the packed heads: set
+    /// by [`Plan::packed`] only, so that an image which never plans packed weights (an MCU's)
+    /// links no packed kernel.
+    packed: Option<(&'m PackedWeights<'m>, PackedFns)>,
     /// The widened int8 point layers and the kernel that runs them: set by [`Plan::widened`]
     /// only, so that an image which never plans widened weights links no widened kernel.
     widened: Option<(&'m WidenedWeights<'m>, MatmatWidenedI8)>,
@@ -281,10 +281,11 @@ impl<'m> Plan<'m> {
         Self::build(model, kernels, None, scratch_words)
     }
 
-    /// [`Plan::new`] for an int8 model whose point layers were packed
-    /// ([`pack_point_layers`], [`PackedLayout::weights`]) for [`Kernels::matmat_packed_i8`]
-    /// (and its int16 first layer for [`Kernels::matmat_packed_i16`]): the same integers,
-    /// faster where `kernels` has native packed kernels ([`Kernels::has_packed`]).
+    /// [`Plan::new`] for an int8 model whose point layers and heads were packed
+    /// ([`pack_layers`], [`PackedLayout::weights`]) for [`Kernels::matmat_packed_i8`]
+    /// (and its int16 first layer and 15-bit heads for [`Kernels::matmat_packed_i16`]): the
+    /// same integers, faster where `kernels` has native packed kernels
+    /// ([`Kernels::has_packed`]).
     pub fn packed(
         model: &'m Model<'m>,
         kernels: Kernels,
@@ -298,7 +299,13 @@ impl<'m> Plan<'m> {
         // Set here, not passed to `build`: with both constructors passing the function to
         // `build`, LLVM's interprocedural constant propagation gave `Plan::new`'s unset payload
         // the same address, and an image that only calls `Plan::new` linked the packed kernels.
-        plan.packed = Some((packed, run_packed_layer));
+        plan.packed = Some((
+            packed,
+            PackedFns {
+                layer: run_packed_layer,
+                heads: packed_heads,
+            },
+        ));
         Ok(plan)
     }
 
@@ -364,10 +371,10 @@ impl<'m> Plan<'m> {
             }
         }
         if let Some(p) = packed {
-            for i in 0..model.point_layer_count() {
+            for (slot, i) in packed_slots(model) {
                 let l = model.layer(i);
                 let shape = (l.desc.out_dim as usize, l.desc.in_dim as usize);
-                let fits = match (l.weights, p.layers[i]) {
+                let fits = match (l.weights, p.layers[slot]) {
                     (Weights::I8(_), Some(PackedLayer::I8(w))) => (w.rows(), w.k()) == shape,
                     (Weights::I16(_), Some(PackedLayer::I16(w))) => (w.rows(), w.k()) == shape,
                     (Weights::F32(_), None) => true,
@@ -658,7 +665,7 @@ impl<'m> Plan<'m> {
                 let acc = acc.get_mut(..n * out_dim).unwrap_or_default();
                 let packed = self
                     .packed
-                    .and_then(|(p, run)| Some((p.layers.get(i).copied()??, run)));
+                    .and_then(|(p, run)| Some((p.layers.get(i).copied()??, run.layer)));
                 // Indexed loops over the points, not zips of chunk iterators: those left an
                 // outlined `Zip::new` with a division panic path in the M7 image.
                 match (l.weights, packed) {
@@ -671,9 +678,9 @@ impl<'m> Plan<'m> {
                             _ => 0,
                         };
                         let coded = inputs.get(..n * 8).unwrap_or_default();
-                        let inputs = (coded, acts.get(src..).unwrap_or_default());
+                        let inputs = ((coded, 8), (acts.get(src..).unwrap_or_default(), acts_len));
                         let pool = (i == last).then_some((requant, &mut *max, &mut *sum));
-                        pooled_last = run(k, layer, inputs, acts_len, n, bias, acc, out_dim, pool);
+                        pooled_last = run(k, layer, inputs, n, bias, acc, out_dim, pool);
                     }
                     (Weights::I16(w), None) => {
                         for (p, y) in acc.chunks_exact_mut(out_dim.max(1)).enumerate() {
@@ -741,6 +748,9 @@ impl<'m> Plan<'m> {
             k.requantize(acc, requant, out);
             Ok(())
         })?;
+        if let Some((packed, run)) = self.packed {
+            return (run.heads)(m, k, packed, run.layer, feats, out_x, out_y);
+        }
         heads(m, feats, out_x, out_y, |l, f, dst| {
             let Bias::I32(bias) = l.bias else {
                 return Err(InferError::DType);
@@ -765,6 +775,63 @@ impl<'m> Plan<'m> {
             Ok(())
         })
     }
+}
+
+/// int16 values of the 15-bit heads' widened features that [`packed_heads`] keeps on the stack
+/// (4 KiB): `HEAD_WIDE / D` joints at a time (all 13 for `D ≤ 157`, at least 8 for the largest
+/// `D`, [`quant::MAX_I16_HEAD_DIM`]).
+const HEAD_WIDE: usize = 2048;
+
+/// The two SimDR heads over packed weights ([`PackedWeights`]): the joints' features are the
+/// rows of one block, so that each weight is loaded once for all joints, not once per joint.
+/// int8 heads read the features in place; 15-bit heads widen [`HEAD_WIDE`] `/ D` joints' at a
+/// time to int16.
+#[allow(clippy::too_many_arguments)]
+fn packed_heads(
+    m: &Model<'_>,
+    k: &Kernels,
+    packed: &PackedWeights<'_>,
+    run: PackedLayerFn,
+    feats: &[i8],
+    out_x: &mut [i32],
+    out_y: &mut [i32],
+) -> Result<(), InferError> {
+    let (d, joints) = (m.head_dim(), m.joints());
+    for (h, out) in [(0, out_x), (1, out_y)] {
+        let l = m.layer(m.head_x_index() + h);
+        let layer = packed.layers.get(MAX_POINT_LAYERS + h).copied().flatten();
+        // Both ruled out by the plan (the engine's types; weights packed for this model).
+        let (Bias::I32(bias), Some(layer)) = (l.bias, layer) else {
+            return Err(InferError::DType);
+        };
+        let o = l.desc.out_dim as usize;
+        match layer {
+            PackedLayer::I8(_) => {
+                run(k, layer, ((&[], 0), (feats, d)), joints, bias, out, o, None);
+            }
+            PackedLayer::I16(_) => {
+                let mut wide = [0i16; HEAD_WIDE];
+                let block = (HEAD_WIDE / d.max(1)).max(1);
+                let mut j0 = 0;
+                while j0 < joints {
+                    let n = (joints - j0).min(block);
+                    let (Some(f), Some(dst), Some(wide)) = (
+                        feats.get(j0 * d..(j0 + n) * d),
+                        out.get_mut(j0 * o..),
+                        wide.get_mut(..n * d),
+                    ) else {
+                        break;
+                    };
+                    for (w, &v) in wide.iter_mut().zip(f) {
+                        *w = i16::from(v);
+                    }
+                    run(k, layer, ((wide, d), (&[], 0)), n, bias, dst, o, None);
+                    j0 += n;
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The FC layers after pooling, ping-ponging between `a` (which holds the first `width`
@@ -833,11 +900,23 @@ fn leaky_f32(v: &mut [f32], alpha: Option<f32>) {
 /// Alignment of the packed weights (a cache line), part of [`packed_bytes`].
 const PACK_ALIGN: usize = 64;
 
-/// Bytes of buffer [`pack_point_layers`] needs for `model`'s int8 and int16 point layers (the
-/// packed weights plus up to 63 bytes to align them to a cache line). 0 for an f32 model.
+/// Slots of a [`PackedLayout`]: the point layers, then the two SimDR heads.
+const PACKED_SLOTS: usize = MAX_POINT_LAYERS + 2;
+
+/// The layers [`pack_layers`] packs, as `(slot, layer index)`: every point layer (slot `i`
+/// for layer `i`) and the two heads (slots `MAX_POINT_LAYERS` and `MAX_POINT_LAYERS + 1`).
+fn packed_slots(model: &Model<'_>) -> impl Iterator<Item = (usize, usize)> {
+    let heads = model.head_x_index();
+    (0..model.point_layer_count())
+        .map(|i| (i, i))
+        .chain([(MAX_POINT_LAYERS, heads), (MAX_POINT_LAYERS + 1, heads + 1)])
+}
+
+/// Bytes of buffer [`pack_layers`] needs for `model`'s int8 and int16 point layers and heads
+/// (the packed weights plus up to 63 bytes to align them to a cache line). 0 for an f32 model.
 pub fn packed_bytes(model: &Model<'_>) -> usize {
-    let packed: usize = (0..model.point_layer_count())
-        .map(|i| {
+    let packed: usize = packed_slots(model)
+        .map(|(_, i)| {
             let l = model.layer(i);
             let (rows, k) = (l.desc.out_dim as usize, l.desc.in_dim as usize);
             match l.weights {
@@ -855,17 +934,18 @@ pub fn packed_bytes(model: &Model<'_>) -> usize {
     }
 }
 
-/// Where [`pack_point_layers`] put each int8 and int16 point layer's packed weights (see
-/// [`crate::kernels::packed`]) in the caller's buffer. Small and `Copy`: keep it next to the buffer,
-/// and get the weights back for [`Plan::packed`] with [`PackedLayout::weights`].
+/// Where [`pack_layers`] put each int8 and int16 point layer's and SimDR head's packed weights
+/// (see [`crate::kernels::packed`]) in the caller's buffer. Small and `Copy`: keep it next to the
+/// buffer, and get the weights back for [`Plan::packed`] with [`PackedLayout::weights`].
 ///
 /// Packing is for CPUs with native packed kernels ([`Kernels::has_packed`]: x86 AVX-512
-/// VNNI, AVX-VNNI, AVX-512BW and AVX2). It doubles the point layers' weight memory, so an MCU runs the blob's row-major
-/// weights in place with [`Plan::run_i8`] instead.
+/// VNNI, AVX-VNNI, AVX-512BW and AVX2). It doubles the point layers' and heads' weight memory,
+/// so an MCU runs the blob's row-major weights in place with [`Plan::run_i8`] instead.
 #[derive(Clone, Copy, Debug)]
 pub struct PackedLayout {
-    /// `(start, len)` of each point layer's packed weights in the buffer (len 0: not packed).
-    layers: [(usize, usize); MAX_POINT_LAYERS],
+    /// `(start, len)` of each packed layer's weights in the buffer (len 0: not packed), by
+    /// slot ([`packed_slots`]).
+    layers: [(usize, usize); PACKED_SLOTS],
     /// The model's blob checksum, to refuse packed weights of another model.
     checksum: u32,
     /// Address and length of the buffer packed into, to refuse any other buffer.
@@ -887,15 +967,16 @@ impl PackedLayout {
         if self.buffer != (buf.as_ptr() as usize, buf.len()) {
             return Err(InferError::PackedBuffer);
         }
-        let mut layers = [None; MAX_POINT_LAYERS];
-        for (i, (slot, &(start, len))) in layers.iter_mut().zip(&self.layers).enumerate() {
+        let mut layers = [None; PACKED_SLOTS];
+        for (slot, i) in packed_slots(model) {
+            let (start, len) = self.layers[slot];
             if len > 0 {
                 let l = model.layer(i);
                 let bytes = buf
                     .get(start..start.saturating_add(len))
                     .ok_or(InferError::PackedBuffer)?;
                 let (rows, k) = (l.desc.out_dim as usize, l.desc.in_dim as usize);
-                *slot = Some(
+                layers[slot] = Some(
                     match l.weights {
                         Weights::I8(_) => {
                             PackedI8::from_packed(bytes, rows, k).map(PackedLayer::I8)
@@ -916,27 +997,47 @@ impl PackedLayout {
     }
 }
 
-/// A model's packed point-layer weights, ready for [`Plan::packed`] (from
+/// A model's packed point-layer and head weights, ready for [`Plan::packed`] (from
 /// [`PackedLayout::weights`]).
 #[derive(Clone, Copy, Debug)]
 pub struct PackedWeights<'b> {
-    layers: [Option<PackedLayer<'b>>; MAX_POINT_LAYERS],
+    /// By slot ([`packed_slots`]).
+    layers: [Option<PackedLayer<'b>>; PACKED_SLOTS],
     checksum: u32,
 }
 
-/// One packed point layer: the int16 first layer or an int8 one.
+/// One packed layer: int16 (the first point layer, 15-bit heads) or int8.
 #[derive(Clone, Copy, Debug)]
 enum PackedLayer<'b> {
     I8(PackedI8<'b>),
     I16(PackedI16<'b>),
 }
 
+/// What runs packed weights, behind function pointers that only [`Plan::packed`] sets.
+#[derive(Clone, Copy, Debug)]
+struct PackedFns {
+    /// [`run_packed_layer`].
+    layer: PackedLayerFn,
+    /// [`packed_heads`].
+    heads: PackedHeadsFn,
+}
+
+/// [`packed_heads`]'s type.
+type PackedHeadsFn = fn(
+    &Model<'_>,
+    &Kernels,
+    &PackedWeights<'_>,
+    PackedLayerFn,
+    &[i8],
+    &mut [i32],
+    &mut [i32],
+) -> Result<(), InferError>;
+
 /// [`run_packed_layer`]'s type.
 type PackedLayerFn = fn(
     &Kernels,
     PackedLayer<'_>,
-    (&[i16], &[i8]),
-    usize,
+    PackedInputs<'_>,
     usize,
     &[i32],
     &mut [i32],
@@ -944,21 +1045,24 @@ type PackedLayerFn = fn(
     Option<PoolInto<'_>>,
 ) -> bool;
 
+/// A packed layer's inputs, each with its row stride: int16 rows for an int16 layer, int8
+/// rows for an int8 one (the other is not read).
+type PackedInputs<'a> = ((&'a [i16], usize), (&'a [i8], usize));
+
 /// The last point layer's pooling: its requantization and the running max and sum.
 type PoolInto<'a> = (Requant<'a>, &'a mut [i8], &'a mut [i32]);
 
-/// One packed point layer for a block of `n` points: the int16 first layer over the coded
-/// points (`inputs.0`, 8 apart), an int8 layer over the activation rows from its sources on
-/// (`inputs.1`, `acts_len` apart); outputs `out_dim` apart in `acc`. With `pool` (the last
-/// layer), where the kernels have a pooled kernel for the layer
-/// ([`Kernels::packed_pool_i8`]), the outputs go into the pooling instead, `acc` untouched:
-/// returns whether they did.
+/// One packed layer for `n` points (rows): an int16 layer over the int16 rows `wide` (the
+/// coded points, 8 apart; the widened features of a 15-bit head), an int8 layer over the int8
+/// rows `acts` (activation rows from the layer's sources on; a head's features); outputs
+/// `out_dim` apart in `acc`. With `pool` (the last point layer), where the kernels have a
+/// pooled kernel for the layer ([`Kernels::packed_pool_i8`]), the outputs go into the pooling
+/// instead, `acc` untouched: returns whether they did.
 #[allow(clippy::too_many_arguments)]
 fn run_packed_layer(
     k: &Kernels,
     layer: PackedLayer<'_>,
-    (coded, acts): (&[i16], &[i8]),
-    acts_len: usize,
+    ((wide, wide_stride), (acts, acts_len)): PackedInputs<'_>,
     n: usize,
     bias: &[i32],
     acc: &mut [i32],
@@ -972,28 +1076,27 @@ fn run_packed_layer(
         }
     }
     match layer {
-        PackedLayer::I16(w) => k.matmat_packed_i16(&w, coded, 8, n, bias, acc, out_dim),
+        PackedLayer::I16(w) => k.matmat_packed_i16(&w, wide, wide_stride, n, bias, acc, out_dim),
         PackedLayer::I8(w) => k.matmat_packed_i8(&w, acts, acts_len, n, bias, acc, out_dim),
     }
     false
 }
 
-/// Packs `model`'s int8 point layers and its int16 first layer into `buf` (at least
-/// [`packed_bytes`] long) and says where they are; keep `buf` where it is (a `Vec`'s heap
-/// buffer stays put when the `Vec` moves) and use [`PackedLayout::weights`] to run. The weights
-/// start at a cache-line boundary of `buf`.
-pub fn pack_point_layers(model: &Model<'_>, buf: &mut [u8]) -> Result<PackedLayout, InferError> {
+/// Packs `model`'s point layers (int8, and the int16 first layer) and its two SimDR heads
+/// (int8, or 15-bit in int16) into `buf` (at least [`packed_bytes`] long) and says where they
+/// are; keep `buf` where it is (a `Vec`'s heap buffer stays put when the `Vec` moves) and use
+/// [`PackedLayout::weights`] to run. The weights start at a cache-line boundary of `buf`.
+///
+/// The heads are shared by every joint: packed, they run as one block of the joints' features
+/// (as the point layers run a block of points) instead of one matrix-vector product per joint.
+pub fn pack_layers(model: &Model<'_>, buf: &mut [u8]) -> Result<PackedLayout, InferError> {
     let (needed, got) = (packed_bytes(model), buf.len());
     if got < needed {
         return Err(InferError::PackBuffer { needed, got });
     }
     let mut at = buf.as_ptr().align_offset(PACK_ALIGN).min(PACK_ALIGN - 1);
-    let mut layers = [(0, 0); MAX_POINT_LAYERS];
-    for (i, slot) in layers
-        .iter_mut()
-        .enumerate()
-        .take(model.point_layer_count())
-    {
+    let mut layers = [(0, 0); PACKED_SLOTS];
+    for (slot, i) in packed_slots(model) {
         let l = model.layer(i);
         let (rows, k) = (l.desc.out_dim as usize, l.desc.in_dim as usize);
         let rest = buf.get_mut(at..).unwrap_or_default();
@@ -1003,7 +1106,7 @@ pub fn pack_point_layers(model: &Model<'_>, buf: &mut [u8]) -> Result<PackedLayo
             Weights::F32(_) => Some(0),
         }
         .ok_or(InferError::PackBuffer { needed, got })?;
-        *slot = (at, len);
+        layers[slot] = (at, len);
         at += len;
     }
     Ok(PackedLayout {

@@ -60,7 +60,7 @@ pub mod smooth;
 
 pub use event::Event;
 pub use infer::{
-    pack_point_layers, packed_bytes, scratch_words, scratch_words_for_block, widen_point_layers,
+    pack_layers, packed_bytes, scratch_words, scratch_words_for_block, widen_point_layers,
     widened_words, InferError, PackedLayout, PackedWeights, Plan, Stage, WidenedWeights,
 };
 pub use model::{DType, Model, ModelError};

@@ -5,7 +5,7 @@ use evpose_core::model::{
     DType, LayerKind, Preprocessing, WeightType, ALIGN, CRC, ENTRY_LEN, FEATURES, HEADER_LEN,
     MAGIC, VERSION,
 };
-use evpose_core::{pack_point_layers, packed_bytes, Model, PackedLayout, PackedWeights};
+use evpose_core::{pack_layers, packed_bytes, Model, PackedLayout, PackedWeights};
 
 /// A dense layer: `y = act(W x + b)` with `W` stored `[out][in]`.
 #[derive(Clone, Debug, PartialEq)]
@@ -231,7 +231,8 @@ pub fn f32_blob(net: &FloatNet) -> Result<Vec<u8>> {
 }
 
 /// A blob in 16-byte-aligned memory, as the core requires for reading weights in place, with
-/// its int8 point layers packed for the packed kernel on first use ([`AlignedBlob::packed`]).
+/// its int8 point layers and heads packed for the packed kernels on first use
+/// ([`AlignedBlob::packed`]).
 pub struct AlignedBlob {
     words: Vec<u128>,
     len: usize,
@@ -250,13 +251,13 @@ impl AlignedBlob {
         }
     }
 
-    /// The packed point-layer weights of `model` (parsed from this blob), packed once, on the
+    /// The packed point-layer and head weights of `model` (parsed from this blob), packed once, on the
     /// first call; `None` for a model without int8 point layers.
     pub fn packed<'b>(&'b self, model: &Model<'b>) -> anyhow::Result<Option<PackedWeights<'b>>> {
         let packed = self.packed.get_or_init(|| {
             let mut buf = vec![0; packed_bytes(model)];
             (!buf.is_empty())
-                .then(|| pack_point_layers(model, &mut buf).ok().map(|l| (l, buf)))
+                .then(|| pack_layers(model, &mut buf).ok().map(|l| (l, buf)))
                 .flatten()
         });
         packed
