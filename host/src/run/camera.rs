@@ -47,6 +47,30 @@ impl Raw {
     }
 }
 
+/// The estimate of a window's largest part: a window the rasterizer had to split (at a
+/// timestamp more than 2^31 µs from the window's first event) is represented by the part with
+/// the most events.
+#[derive(Default)]
+struct Largest(Option<(u32, Raw)>);
+
+impl Largest {
+    /// Keeps `raw()` if a part of `events` events is larger than every part offered so far.
+    fn offer(&mut self, events: u32, raw: impl FnOnce() -> Raw) {
+        if self.0.as_ref().is_none_or(|(n, _)| events > *n) {
+            self.0 = Some((events, raw()));
+        }
+    }
+
+    fn is_empty(&self) -> bool {
+        self.0.is_none()
+    }
+
+    /// The kept estimate (the default, empty one if none was offered).
+    fn take(self) -> Raw {
+        self.0.map(|(_, raw)| raw).unwrap_or_default()
+    }
+}
+
 /// Maps a sensor's pixels to a model's resolution and back.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Rescale {
@@ -121,24 +145,28 @@ impl<E: Engine> CameraEstimator for CoreCamera<'_, E> {
     fn estimate(&mut self, events: &[Event]) -> Result<Raw> {
         let mut ws = self.buffers.workspace();
         let scales = self.scales;
+        // The rasterizer holds a whole window, so it closes by count only at the last event;
+        // it also closes early at an event more than 2^31 µs from the window's first (a
+        // glitched timestamp). Then every part is estimated and the one with the most events
+        // stands for the window ([`Largest`]), and nothing stays open to leak into the next.
+        let mut best = Largest::default();
         let mut rest = events;
-        let mut closed = None;
-        // The rasterizer holds a whole window: it closes by count only at the last event.
         while !rest.is_empty() {
             let (used, estimate) = self.session.extend(rest, &mut ws, &mut ())?;
             if let Some(e) = estimate {
-                closed = Some(Raw::of(&e, events.len(), scales));
+                best.offer(e.window.summary().events, || {
+                    Raw::of(&e, events.len(), scales)
+                });
             }
             rest = &rest[used..];
         }
-        match closed {
-            Some(raw) => Ok(raw),
-            None => Ok(Raw::of(
-                &self.session.flush(&mut ws, &mut ())?,
-                events.len(),
-                scales,
-            )),
+        if best.is_empty() || self.session.rasterizer().buffered() > 0 {
+            let e = self.session.flush(&mut ws, &mut ())?;
+            best.offer(e.window.summary().events, || {
+                Raw::of(&e, events.len(), scales)
+            });
         }
+        Ok(best.take())
     }
 
     fn joints(&self) -> usize {
@@ -237,6 +265,32 @@ impl TractCamera {
         self.points
     }
 
+    /// Samples, infers and decodes the rasterizer's last closed window (part of a window of
+    /// `events` events); returns the part's event count with the estimate.
+    fn infer_last(&mut self, events: usize) -> Result<(u32, Raw)> {
+        let window = self.raster.last_window().unwrap_or_default();
+        let input = evpose_core::sample_window(
+            &window,
+            self.points,
+            &mut self.rng,
+            &mut self.indices,
+            &mut self.rows,
+        )?;
+        let l = self.model.run(input)?;
+        let (w, h) = (l.width(), l.height());
+        let mut joints = vec![Joint2d::default(); l.joints];
+        evpose_core::decode(&l.x, &l.y, w, h, &mut joints)?;
+        let mut confidence = vec![0f32; l.joints];
+        evpose_core::confidence::joints(&l.x, &l.y, w, h, [1.0; 2], &joints, &mut confidence)?;
+        let raw = Raw {
+            events,
+            points: window.len(),
+            joints,
+            confidence,
+        };
+        Ok((window.summary().events, raw))
+    }
+
     /// Another camera's estimator over the same loaded model (no second load or tract
     /// optimization), its sampler seeded with `seed`.
     pub fn with_seed(&self, seed: u64) -> Result<Self> {
@@ -258,31 +312,25 @@ impl TractCamera {
 #[cfg(feature = "onnx")]
 impl CameraEstimator for TractCamera {
     fn estimate(&mut self, events: &[Event]) -> Result<Raw> {
-        let closed = self.raster.extend(events).1.is_some();
-        let window = if closed {
-            self.raster.last_window().unwrap_or_default()
-        } else {
-            self.raster.flush()
-        };
-        let input = evpose_core::sample_window(
-            &window,
-            self.points,
-            &mut self.rng,
-            &mut self.indices,
-            &mut self.rows,
-        )?;
-        let l = self.model.run(input)?;
-        let (w, h) = (l.width(), l.height());
-        let mut joints = vec![Joint2d::default(); l.joints];
-        evpose_core::decode(&l.x, &l.y, w, h, &mut joints)?;
-        let mut confidence = vec![0f32; l.joints];
-        evpose_core::confidence::joints(&l.x, &l.y, w, h, [1.0; 2], &joints, &mut confidence)?;
-        Ok(Raw {
-            events: events.len(),
-            points: window.len(),
-            joints,
-            confidence,
-        })
+        // As the core camera: every part of a window the rasterizer split is estimated, the
+        // largest stands for the window, and nothing stays open.
+        let mut best = Largest::default();
+        let mut rest = events;
+        while !rest.is_empty() {
+            let (used, closed) = self.raster.extend(rest);
+            let closed = closed.is_some();
+            if closed {
+                let (n, raw) = self.infer_last(events.len())?;
+                best.offer(n, || raw);
+            }
+            rest = &rest[used..];
+        }
+        if best.is_empty() || self.raster.buffered() > 0 {
+            self.raster.flush();
+            let (n, raw) = self.infer_last(events.len())?;
+            best.offer(n, || raw);
+        }
+        Ok(best.take())
     }
 
     fn joints(&self) -> usize {
@@ -293,6 +341,44 @@ impl CameraEstimator for TractCamera {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// 7,500 events over the sensor with a 50-minute jump after 5,000 (beyond the rasterizer's
+    /// 2^31 µs per window), then a window whose events all sit on one pixel: that window has at
+    /// most K = 4 points whatever came before.
+    fn check_time_jump(cam: &mut dyn CameraEstimator) {
+        let jump = 50 * 60 * 1_000_000;
+        let first: Vec<Event> = (0..7_500u32)
+            .map(|i| {
+                let t = i64::from(i) + if i >= 5_000 { jump } else { 0 };
+                Event::new((i % 300) as u16, (i / 300 % 250) as u16, t, i % 2 == 0)
+            })
+            .collect();
+        let raw = cam.estimate(&first).unwrap();
+        assert_eq!(raw.events, 7_500);
+        // The larger part (5,000 events over 5,000 pixels) stands for the window.
+        assert_eq!(raw.points, 5_000);
+        let t0 = jump + 10_000;
+        let second: Vec<Event> = (0..7_500)
+            .map(|i| Event::new(7, 9, t0 + i64::from(i), true))
+            .collect();
+        let raw = cam.estimate(&second).unwrap();
+        assert!(raw.points <= 4, "{} points", raw.points);
+        assert_eq!(raw.events, 7_500);
+    }
+
+    #[test]
+    fn a_window_split_by_a_time_jump_leaves_nothing_for_the_next() {
+        let blob = crate::model::AlignedBlob::new(crate::assets::DEFAULT_MODEL);
+        let runner = CoreRunner::new(&blob).unwrap();
+        let mut cams = core_estimators(&runner, 1, 256, 7_500, 0).unwrap();
+        check_time_jump(cams[0].as_mut());
+        #[cfg(feature = "onnx")]
+        {
+            let onnx = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/mcu.onnx");
+            let (mut tract, _) = TractCamera::load(&onnx, None, 7_500, 0).unwrap();
+            check_time_jump(&mut tract);
+        }
+    }
 
     #[test]
     fn rescaling_maps_pixels_and_joints() {
