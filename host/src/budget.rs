@@ -79,7 +79,7 @@ pub struct ModelBudget {
     /// Scratch words of the blob's engine in blocks of `MAX_BLOCK` points (what the host lends:
     /// fewer passes over the weights); `scratch_words` is the one-point minimum an MCU lends.
     pub block_scratch_words: usize,
-    /// Bytes of the packed copy of the point layers' weights that a host with native packed
+    /// Bytes of the packed copy of the point layers' and heads' weights that a host with native packed
     /// kernels (x86 AVX-512 VNNI, AVX-VNNI) makes at load (`evpose_core::packed_bytes`); 0 for
     /// f32.
     pub packed_bytes: usize,
@@ -625,15 +625,15 @@ mod tests {
         assert_eq!(b.macs_per_point, 19_280);
         assert_eq!(b.macs_total, 19_280 * 2048 + b.macs_after_pooling);
         assert!(b.block_scratch_words > b.scratch_words);
-        // The packed copy holds every int8 point-layer weight, padded to whole 64 × 4 blocks
-        // (conv2's 16 rows become 64, but conv5's 128 × 128 dominate: under twice the bytes),
-        // plus up to 63 bytes of alignment.
+        // The packed copy holds every point layer and both heads in whole blocks of 64 rows by
+        // one step (four int8 inputs, or two int16): 768 + 1,024 + 1,024 + 2,048 + 16,384 bytes
+        // for the point layers (the int16 first one: 3 steps of one group), 24,576 + 20,480 for
+        // the 15-bit heads (6 and 5 groups of 16 steps), and up to 63 bytes of alignment.
+        assert_eq!(b.packed_bytes, 21_248 + 45_056 + 63);
         let point_i8: u64 = b.layers[1..m.point_layer_count()]
             .iter()
             .map(|l| l.weight_bytes)
             .sum();
-        assert!(b.packed_bytes as u64 >= point_i8);
-        assert!(b.packed_bytes as u64 <= 2 * point_i8 + 63);
         // Two bytes per int8 point-layer weight in whole steps of four (all of them here).
         assert_eq!(b.widened_bytes as u64, 2 * point_i8);
     }
