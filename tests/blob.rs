@@ -259,3 +259,52 @@ fn non_finite_requantization_scales_are_errors() {
         }
     }
 }
+
+/// A model whose training diverged (NaN or infinite weights), NaN or infinite calibration
+/// features, and a quantized net the core would refuse are errors where they arise: in the
+/// import, the calibration and the writing of the blob, never a plausible-looking blob.
+#[test]
+fn non_finite_models_and_calibration_inputs_are_refused() {
+    let onnx = std::fs::read(fixtures().join("pointnet-small.onnx")).unwrap();
+    let net = model::import_onnx(&fixtures().join("pointnet-small.onnx")).unwrap();
+    // The x head's first weight (a plain Linear: no BatchNorm folded into it), found by its
+    // bytes in the ONNX file (its initializer holds the raw little-endian floats) and made
+    // NaN, then infinite.
+    let w = net.head_x.w[0].to_le_bytes();
+    let at: Vec<usize> = onnx
+        .windows(4)
+        .enumerate()
+        .filter(|(_, b)| *b == w)
+        .map(|(i, _)| i)
+        .collect();
+    assert_eq!(at.len(), 1, "the weight's bytes are not unique in the file");
+    let dir = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"));
+    for bad in [f32::NAN, f32::INFINITY] {
+        let mut b = onnx.clone();
+        b[at[0]..at[0] + 4].copy_from_slice(&bad.to_le_bytes());
+        let path = dir.join("pointnet-small-non-finite.onnx");
+        std::fs::write(&path, &b).unwrap();
+        let err = format!("{:#}", model::import_onnx(&path).unwrap_err());
+        assert!(
+            err.contains("layer 7 (head_x) has a non-finite weight or bias"),
+            "{err}"
+        );
+    }
+    let input = model::read_points(&fixtures().join("street-00.points.npy")).unwrap();
+    for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+        let mut points = input.clone();
+        points[17][2] = bad;
+        let err = quantize::calibrate(&net, &[input.clone(), points]).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "calibration window 1, point 17: a non-finite feature"
+        );
+    }
+    let mut q = quantize::quantize(&net, &quantize::calibrate(&net, &[input]).unwrap()).unwrap();
+    q.layers[2].scales[3] = f32::INFINITY;
+    let err = q.blob().unwrap_err().to_string();
+    assert!(
+        err.starts_with("the model would not load:") && err.contains("not finite"),
+        "{err}"
+    );
+}

@@ -101,6 +101,18 @@ pub fn import_onnx(path: &Path) -> Result<FloatNet> {
         )
     })?;
     net.points = fixed;
+    // A model whose training diverged has NaN or infinite weights: refuse it here, where the
+    // layer can be named, not after quantization made plausible integers of it.
+    for (i, (kind, l)) in net.layers().enumerate() {
+        let bad = l.w.iter().chain(&l.b).find(|v| !v.is_finite());
+        if let Some(v) = bad {
+            bail!(
+                "{}: layer {i} ({}) has a non-finite weight or bias ({v})",
+                path.display(),
+                evpose_core::infer::describe(kind)
+            );
+        }
+    }
     Ok(net)
 }
 

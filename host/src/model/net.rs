@@ -192,6 +192,10 @@ pub fn write_blob(h: &BlobHeader, layers: &[BlobLayer]) -> Result<Vec<u8>> {
     put_u32(&mut out, o::TOTAL, total);
     let crc = CRC.checksum(&out[o::CRC_FROM..]);
     put_u32(&mut out, o::CRC, crc);
+    // Every blob written is one the core loads: what it would refuse (a non-finite scale, an
+    // i16 head out of its limits) is an error now, not at the first inference.
+    Model::parse(AlignedBlob::new(&out).bytes())
+        .map_err(|e| anyhow::anyhow!("the model would not load: {e}"))?;
     Ok(out)
 }
 

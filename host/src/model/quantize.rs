@@ -20,7 +20,7 @@
 //! integer-valued floats, `ConvInteger`, `MatMulInteger`, `Add` (int32), `Cast`, `Mul`,
 //! `LeakyRelu`, `QuantizeLinear` with scale 1, `ReduceMax` (int8), `ReduceSum` (int32), `Div`.
 
-use anyhow::{ensure, Result};
+use anyhow::{bail, ensure, Result};
 use evpose_core::infer::MAX_BLOCK;
 use evpose_core::model::{DType, LayerKind, Preprocessing, WeightType, FEATURES};
 use evpose_core::quant::{
@@ -63,6 +63,13 @@ pub fn calibrate(net: &FloatNet, inputs: &[Vec<[f32; 5]>]) -> Result<Ranges> {
         !inputs.is_empty(),
         "calibration needs at least one input window"
     );
+    // A NaN drops out of the running maxima and an infinity makes an infinite scale: either
+    // would give a blob that looks fine and is not.
+    for (w, points) in inputs.iter().enumerate() {
+        if let Some(p) = points.iter().position(|p| p.iter().any(|v| !v.is_finite())) {
+            bail!("calibration window {w}, point {p}: a non-finite feature");
+        }
+    }
     let blob = AlignedBlob::new(&f32_blob(net)?);
     let model = Model::parse(blob.bytes()).map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut scratch = vec![0f32; scratch_words_for_block(&model, MAX_BLOCK)];
