@@ -232,7 +232,12 @@ impl Importer {
             return self.binary(b.0.name(), ins);
         }
         match op.name().as_ref() {
-            "Concat" => self.concat(ins),
+            "Concat" => {
+                let axis = op
+                    .downcast_ref::<tract_core::ops::array::TypedConcat>()
+                    .map(|c| c.axis);
+                self.concat(axis, ins)
+            }
             // Shape-only ops: the value is the same.
             "AddAxis" | "RmAxis" | "Reshape" | "Cast" | "Identity" => {
                 self.reshape(model, node, ins[0])
@@ -349,8 +354,19 @@ impl Importer {
         }
     }
 
-    fn concat(&mut self, ins: &[&Val]) -> Result<Val> {
+    /// A concatenation along `axis` (the op's, where tract says it).
+    fn concat(&mut self, axis: Option<usize>, ins: &[&Val]) -> Result<Val> {
         let ins: Vec<Val> = ins.iter().map(|v| self.settle(v)).collect::<Result<_>>()?;
+        // Per-point features `(1, C, N)` and pooled vectors `(1, C)` or `(1, C, 1)` join along
+        // the channels; `[max, mean]` along another axis (e.g. `torch.cat(.., dim=2)` then a
+        // flatten) interleaves them, which the blob's `[max…, mean…]` layout would misread.
+        if ins.iter().any(|v| !matches!(v, Val::Const(_))) {
+            ensure!(
+                axis == Some(1),
+                "concatenation must be along the channel axis (1), not {}",
+                axis.map_or("an unknown one".to_string(), |a| a.to_string())
+            );
+        }
         match &ins[..] {
             [Val::Max(a), Val::Mean(b)] if a == b => {
                 ensure!(
@@ -533,5 +549,45 @@ fn broadcast(c: &[f32], n: usize) -> Result<Vec<f32>> {
         1 => Ok(vec![c[0]; n]),
         len if len == n => Ok(c.to_vec()),
         len => bail!("constant of {len} values does not match {n} channels"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn concatenations_off_the_channel_axis_are_refused() {
+        let layer = Dense {
+            in_dim: 5,
+            out_dim: 8,
+            w: vec![0.0; 40],
+            b: vec![0.0; 8],
+            leaky: None,
+            sources: 1,
+        };
+        let mut imp = Importer {
+            point: vec![layer],
+            fc: Vec::new(),
+            points: 16,
+        };
+        // `[max, mean]` of the last point layer: along the channels it is the pooled vector;
+        // along the points axis (`torch.cat(.., dim=2)` before a flatten) it is refused.
+        let (max, mean) = (Val::Max(1), Val::Mean(1));
+        assert!(matches!(
+            imp.concat(Some(1), &[&max, &mean]),
+            Ok(Val::Vector(None))
+        ));
+        for axis in [Some(0), Some(2), None] {
+            let err = imp.concat(axis, &[&max, &mean]).unwrap_err().to_string();
+            assert!(
+                err.starts_with("concatenation must be along the channel axis (1)"),
+                "{err}"
+            );
+        }
+        // Per-point features likewise.
+        let (a, b) = (Val::Feat(vec![0]), Val::Feat(vec![1]));
+        assert!(matches!(imp.concat(Some(1), &[&a, &b]), Ok(Val::Feat(f)) if f == [0, 1]));
+        assert!(imp.concat(Some(2), &[&a, &b]).is_err());
     }
 }
