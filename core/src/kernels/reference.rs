@@ -1,14 +1,16 @@
 //! Portable scalar kernels: the definition every optimized kernel is checked against.
 
 /// `out[o] = bias[o] + Σ_k w[o·K + k] · x[k]` in i32, `K = x.len()`, for int8 operands.
-/// Exact: |product| ≤ 2^14, so any K below 2^17 cannot overflow.
+/// |product| ≤ 2^14, so the sum alone cannot overflow for K below 2^17; the additions wrap (as
+/// every SIMD and DSP kernel's do, in any order: the result is the same modulo 2^32), so that
+/// a blob's bias near `i32::MAX` gives defined integers, never a panic. The quantizer keeps its
+/// biases far enough from the limits that nothing wraps.
 pub fn matvec_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
     let k = x.len();
     for ((o, row), &b) in out.iter_mut().zip(w.chunks_exact(k)).zip(bias) {
-        *o = row
-            .iter()
-            .zip(x)
-            .fold(b, |acc, (&w, &x)| acc + i32::from(w) * i32::from(x));
+        *o = row.iter().zip(x).fold(b, |acc, (&w, &x)| {
+            acc.wrapping_add(i32::from(w) * i32::from(x))
+        });
     }
 }
 
@@ -54,14 +56,15 @@ pub fn matmat_by_rows(
     }
 }
 
-/// The same for the i16 first layer (|w| ≤ 1023, |x| ≤ 2047 keep every sum below 2^24).
+/// The same for int16 operands: the first layer (the quantizer's |w| ≤ 1023 and |x| ≤ 2047
+/// keep every sum below 2^24) and 15-bit heads (bounded by the parser). The sums
+/// wrap, as in [`matvec_i8`]: a blob's first layer may hold any i16 weights.
 pub fn matvec_i16(w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]) {
     let k = x.len();
     for ((o, row), &b) in out.iter_mut().zip(w.chunks_exact(k)).zip(bias) {
-        *o = row
-            .iter()
-            .zip(x)
-            .fold(b, |acc, (&w, &x)| acc + i32::from(w) * i32::from(x));
+        *o = row.iter().zip(x).fold(b, |acc, (&w, &x)| {
+            acc.wrapping_add(i32::from(w) * i32::from(x))
+        });
     }
 }
 

@@ -174,16 +174,23 @@ struct Folded {
     sw: Vec<f64>,
 }
 
+/// Folds `l` into integers: each output's weight scale is the smallest that keeps its weights
+/// within `±limit` and its bias within `±bias_limit` (a large bias beside small weights, e.g.
+/// a BatchNorm with a tiny gamma folded in, widens the scale rather than being clipped; a row of
+/// zero weights gets its scale from the bias alone), one scale for all outputs if `per_tensor`.
 fn fold(l: &Dense, s_in: &[f64], limit: f64, per_tensor: bool, bias_limit: f64) -> Folded {
     let eff = |o: usize, k: usize| f64::from(l.w[o * l.in_dim + k]) * s_in[k];
     let row_max = |o: usize| (0..l.in_dim).fold(0f64, |m, k| m.max(eff(o, k).abs()));
-    let mut sw: Vec<f64> = (0..l.out_dim).map(row_max).collect();
+    let bias = |o: usize| l.b.get(o).map_or(0.0, |&b| f64::from(b).abs());
+    let mut sw: Vec<f64> = (0..l.out_dim)
+        .map(|o| (row_max(o) / limit).max(bias(o) / bias_limit))
+        .collect();
     if per_tensor {
         let m = sw.iter().fold(0f64, |a, &b| a.max(b));
         sw.iter_mut().for_each(|s| *s = m);
     }
     sw.iter_mut()
-        .for_each(|s| *s = if *s > 0.0 { *s / limit } else { 1.0 });
+        .for_each(|s| *s = if *s > 0.0 { *s } else { 1.0 });
     let mut w = Vec::with_capacity(l.w.len());
     for (o, &s) in sw.iter().enumerate() {
         for k in 0..l.in_dim {
@@ -200,6 +207,12 @@ fn fold(l: &Dense, s_in: &[f64], limit: f64, per_tensor: bool, bias_limit: f64) 
             })
             .collect();
     Folded { w, b, sw }
+}
+
+/// The largest bias of an int8 layer with `k` inputs whose sums cannot leave i32: every
+/// product is at most 127 · 128 in magnitude (weights within ±127, inputs within -128..=127).
+fn i8_bias_limit(k: usize) -> f64 {
+    (f64::from(i32::MAX) - k as f64 * 127.0 * 128.0).max(1.0)
 }
 
 /// Quantizes `net` with calibrated `ranges`.
@@ -242,7 +255,7 @@ pub fn quantize(net: &FloatNet, ranges: &Ranges) -> Result<QuantNet> {
             for src in (1..=net.point.len()).filter(|b| l.sources >> b & 1 == 1) {
                 s.extend_from_slice(&s_point[src - 1]);
             }
-            (s, 127.0, f64::from(i32::MAX))
+            (s, 127.0, i8_bias_limit(l.in_dim))
         };
         let f = fold(l, &s_in, limit, false, bias_limit);
         let w = if l.sources == 1 {
@@ -262,7 +275,7 @@ pub fn quantize(net: &FloatNet, ranges: &Ranges) -> Result<QuantNet> {
         .chain(std::iter::repeat_n(s_mean, pooled))
         .collect();
     for (i, l) in net.fc.iter().enumerate() {
-        let f = fold(l, &s_in, 127.0, false, f64::from(i32::MAX));
+        let f = fold(l, &s_in, 127.0, false, i8_bias_limit(l.in_dim));
         let w = QWeights::I8(f.w.iter().map(|&v| v as i8).collect());
         layers.push(requant_layer(
             LayerKind::Fc,
@@ -384,5 +397,63 @@ impl QuantNet {
             },
             &layers,
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dense(in_dim: usize, w: Vec<f32>, b: Vec<f32>) -> Dense {
+        Dense {
+            in_dim,
+            out_dim: b.len(),
+            w,
+            b,
+            leaky: None,
+            sources: 0,
+        }
+    }
+
+    #[test]
+    fn a_bias_beyond_its_limit_widens_the_scale_instead_of_being_clipped() {
+        // Row 0: tiny weights beside a large bias (a folded BatchNorm with a tiny gamma); row
+        // 1: zero weights and a bias; row 2: an ordinary row; row 3: nothing at all.
+        let l = dense(
+            4,
+            [[1e-5f32; 4], [0.0; 4], [0.5, -0.25, 0.1, 0.0], [0.0; 4]].concat(),
+            vec![0.1, 0.3, 0.01, 0.0],
+        );
+        let limit = 127.0;
+        let bias_limit = 1e4;
+        let f = fold(&l, &[1.0; 4], limit, false, bias_limit);
+        for o in 0..4 {
+            let back = f64::from(f.b[o]) * f.sw[o];
+            assert!(
+                (back - f64::from(l.b[o])).abs() <= f.sw[o] / 2.0,
+                "row {o}: bias {} comes back as {back}",
+                l.b[o]
+            );
+            assert!(f64::from(f.b[o].abs()) <= bias_limit);
+            assert!(f.w[o * 4..][..4]
+                .iter()
+                .all(|w| f64::from(w.abs()) <= limit));
+        }
+        // The ordinary row keeps the weights' scale (its bias fits).
+        assert_eq!(f.sw[2], 0.5 / 127.0);
+        assert_eq!(f.w[8], 127);
+        assert_eq!(f.sw[3], 1.0);
+    }
+
+    #[test]
+    fn int8_biases_leave_room_for_every_sum() {
+        // A bias of 1 with weights of 1e-9: by the weights alone the integer bias would be
+        // about 1.3e11, clipped at i32::MAX, and sums of K products on top would wrap.
+        let k = 512;
+        let l = dense(k, vec![1e-9; k], vec![1.0]);
+        let f = fold(&l, &vec![1.0; k], 127.0, false, i8_bias_limit(k));
+        let worst = i64::from(f.b[0]) + k as i64 * 127 * 128;
+        assert!(worst <= i64::from(i32::MAX), "{worst}");
+        assert!((f64::from(f.b[0]) * f.sw[0] - 1.0).abs() < 1e-6);
     }
 }
