@@ -45,12 +45,17 @@ impl fmt::Display for BufferTooSmall {
 
 impl core::error::Error for BufferTooSmall {}
 
-/// Number of points a sample of `n` from `m` has: `n`, or `m` when `n == 0` (keep all).
+/// Number of points a sample of `n` from `m` has: `n`, or `m` when `n == 0` (keep all), and
+/// then one for an empty window (`m == 0`): its all-zero point pools to what `N` all-zero
+/// points do, so that an empty window gets the same guess in both modes instead of an input the
+/// engine refuses.
 pub const fn sample_len(m: usize, n: usize) -> usize {
-    if n == 0 {
-        m
-    } else {
+    if n != 0 {
         n
+    } else if m == 0 {
+        1
+    } else {
+        m
     }
 }
 
@@ -129,7 +134,8 @@ pub fn sample_indices<'o, R: RngCore>(
 /// Samples a window into network input rows `[x, y, t_avg, p_acc, cnt]`.
 ///
 /// `indices` is scratch for [`sample_indices`] (at least `sample_len(window.len(), n)` entries);
-/// `out` receives `sample_len(window.len(), n)` rows, or `n` all-zero rows for an empty window.
+/// `out` receives `sample_len(window.len(), n)` rows, all zero for an empty window (`n` of them,
+/// or one when `n == 0`).
 /// Returns the filled rows.
 pub fn sample_window<'o, R: RngCore>(
     window: &Window<'_>,
@@ -160,6 +166,23 @@ pub fn sample_window<'o, R: RngCore>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn keeping_every_point_of_an_empty_window_gives_one_zero_point() {
+        assert_eq!(
+            (sample_len(0, 0), sample_len(7, 0), sample_len(0, 5)),
+            (1, 7, 5)
+        );
+        let mut storage = crate::raster::Davis346Storage::new();
+        let config = crate::raster::RasterConfig::DAVIS346;
+        let mut r = crate::raster::Rasterizer::new(config, &mut storage).unwrap();
+        let window = r.flush();
+        assert!(window.is_empty());
+        let (mut idx, mut rows) = ([0u32; 4], [[1.0f32; 5]; 4]);
+        let mut rng = rng_from_seed(1);
+        let got = sample_window(&window, 0, &mut rng, &mut idx, &mut rows).unwrap();
+        assert_eq!(got, &[[0.0; 5]]);
+    }
 
     #[test]
     fn without_replacement_is_sorted_distinct_and_complete() {

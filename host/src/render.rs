@@ -265,7 +265,22 @@ impl RunRenderer {
                 enc.set_repeat(image::codecs::gif::Repeat::Infinite)?;
                 FrameSink::Gif(Box::new(enc))
             }
-            Some("png") => FrameSink::Png(path.to_path_buf()),
+            Some("png") => {
+                // The frames are written as the run goes: a missing directory is an error now,
+                // not after the first window.
+                let dir = path
+                    .parent()
+                    .filter(|d| !d.as_os_str().is_empty())
+                    .unwrap_or(std::path::Path::new("."));
+                if !dir.is_dir() {
+                    bail!(
+                        "{}: no directory {} to write the frames into",
+                        path.display(),
+                        dir.display()
+                    );
+                }
+                FrameSink::Png(path.to_path_buf())
+            }
             _ => bail!("{}: render to a .gif or .png file", path.display()),
         };
         Ok(Self {

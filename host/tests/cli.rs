@@ -894,3 +894,90 @@ fn bench_pipeline_times_the_whole_run() {
     let per_pass = v["seconds_per_pass"].as_f64().unwrap();
     assert!((per_window * 12.0 - per_pass * 1e3).abs() < 1e-6 * per_pass * 1e3);
 }
+
+/// A text recording: 300 events, a second without any, 300 more (`t x y p`, µs).
+fn recording_with_a_gap() -> PathBuf {
+    let path = tmp("gap.txt");
+    let lines: String = (0..600u32)
+        .map(|i| {
+            let t = u64::from(i % 300) + if i >= 300 { 1_000_000 } else { 0 };
+            format!("{t} {} {} 1\n", (i * 37) % 346, (i * 53) % 260)
+        })
+        .collect();
+    std::fs::write(&path, lines).unwrap();
+    path
+}
+
+#[test]
+fn run_keeping_every_point_estimates_empty_windows_too() {
+    // `--points 0` (every point of the window): a window without events gets the same guess
+    // as with sampled points (one all-zero point pools as `N` do), not an inference error.
+    let events = recording_with_a_gap();
+    let mut outs = Vec::new();
+    for points in ["0", "256"] {
+        let out = tmp(&format!("gap-{points}.json"));
+        evpose(&[
+            "run",
+            "--events",
+            s(&events),
+            "--window-ms",
+            "100",
+            "--points",
+            points,
+            "--smooth",
+            "off",
+            "--out",
+            s(&out),
+        ]);
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+        let windows = v.as_array().unwrap().clone();
+        assert_eq!(windows.len(), 10, "{points}");
+        assert_eq!(windows[0]["cameras"][0]["events"], 300);
+        assert_eq!(windows[5]["cameras"][0]["events"], 0);
+        outs.push(windows);
+    }
+    assert_eq!(
+        outs[0][5]["cameras"][0]["joints"],
+        outs[1][5]["cameras"][0]["joints"]
+    );
+}
+
+#[test]
+fn run_errors_leave_well_formed_outputs() {
+    // A recording damaged at its end: the run stops with the reader's error, and the JSON
+    // output still parses, with the windows done before it.
+    // (Long enough that the reader hands out batches before it meets the damage.)
+    let events = encoders::synthetic(400_000, 346, 260, 4, 0);
+    let bytes = encoders::aedat2_davis346(&events, true);
+    let cut = tmp("cut-run.aedat");
+    std::fs::write(&cut, &bytes[..bytes.len() - 3]).unwrap();
+    let out = tmp("cut-run.json");
+    let err = evpose_err(&["run", "--events", s(&cut), "--out", s(&out)]);
+    assert!(err.contains("keep the windows before the error"), "{err}");
+    assert!(
+        err.contains("file ends inside an AEDAT 2.0 event record"),
+        "{err}"
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert!(
+        !v.as_array().unwrap().is_empty(),
+        "no window before the error"
+    );
+    // Frames for a directory that does not exist: refused before any output file is made.
+    let out = tmp("never-written.json");
+    let _ = std::fs::remove_file(&out);
+    let frames = tmp("no-such-dir").join("frame.png");
+    let err = evpose_err(&[
+        "run",
+        "--events",
+        s(&fixture("street-00.events.npy")),
+        "--render",
+        s(&frames),
+        "--out",
+        s(&out),
+    ]);
+    assert!(err.contains("no directory"), "{err}");
+    assert!(!out.exists());
+}

@@ -168,11 +168,8 @@ pub fn run(a: &RunArgs) -> Result<()> {
             d.filter
         );
     }
-    let mut writers = a
-        .out
-        .iter()
-        .map(|p| PoseWriter::create(p))
-        .collect::<Result<Vec<_>>>()?;
+    // The renderer first: its checks (extension, directory) fail before any output file
+    // exists.
     let mut renderer = match &a.render {
         Some(path) => {
             let sizes: Vec<(u16, u16)> = plan
@@ -190,6 +187,11 @@ pub fn run(a: &RunArgs) -> Result<()> {
         }
         None => None,
     };
+    let mut writers = a
+        .out
+        .iter()
+        .map(|p| PoseWriter::create(p))
+        .collect::<Result<Vec<_>>>()?;
     let bar = indicatif::ProgressBar::new_spinner();
     bar.set_style(
         indicatif::ProgressStyle::with_template("{spinner} {pos} windows {msg} [{elapsed}]")
@@ -207,11 +209,22 @@ pub fn run(a: &RunArgs) -> Result<()> {
             bar.suspend(|| print_window(w, a.json))?;
         }
         Ok(())
-    })?;
+    });
     bar.finish_and_clear();
-    for out in writers {
-        out.finish()?;
-    }
+    // Whatever happened, the output files end well-formed (a JSON array closed) with the
+    // windows done so far.
+    let closed: Vec<Result<()>> = writers.into_iter().map(|out| out.finish()).collect();
+    let summary = summary.map_err(|e| match a.out.as_slice() {
+        [] => e,
+        outs => {
+            let names: Vec<String> = outs.iter().map(|p| p.display().to_string()).collect();
+            e.context(format!(
+                "the run stopped; {} keep the windows before the error",
+                names.join(", ")
+            ))
+        }
+    })?;
+    closed.into_iter().collect::<Result<()>>()?;
     if a.json {
         let v = serde_json::json!({ "run": d, "summary": summary });
         println!("{}", serde_json::to_string(&v)?);
