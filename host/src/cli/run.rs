@@ -297,6 +297,13 @@ fn print_summary(s: &RunSummary, synthetic: bool) {
             String::new()
         }
     );
+    if s.skipped_windows > 0 {
+        println!(
+            "skipped {} empty windows over gaps longer than {} windows (a timestamp jump?)",
+            s.skipped_windows,
+            crate::run::windows::MAX_GAP_WINDOWS
+        );
+    }
     if let Some(c) = s.mean_confidence {
         println!(
             "mean joint confidence {c:.3}; {} of {} windows show no body ({})",

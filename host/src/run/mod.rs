@@ -245,6 +245,8 @@ pub struct RunSummary {
     pub events: u64,
     /// Events dropped from over-full time windows.
     pub dropped: u64,
+    /// Empty time windows skipped over long gaps (beyond `windows::MAX_GAP_WINDOWS` in a row).
+    pub skipped_windows: u64,
     /// Mean joint confidence over all windows and cameras.
     pub mean_confidence: Option<f64>,
     /// Windows that show no body ([`no_body_seen`]).
@@ -711,6 +713,7 @@ pub fn run(
     let mut summary = reporter.summary;
     summary.windows = cutter.windows();
     summary.dropped = cutter.dropped();
+    summary.skipped_windows = cutter.skipped();
     summary.mean_confidence =
         (reporter.conf.1 > 0).then(|| reporter.conf.0 / reporter.conf.1 as f64);
     if truth.is_some() {

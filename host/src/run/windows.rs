@@ -149,6 +149,9 @@ impl Buffer {
     }
 }
 
+/// The most empty time windows a gap without events gives (see [`Cutter`]).
+pub const MAX_GAP_WINDOWS: i64 = 10_000;
+
 /// The window cutter: events go in (one at a time, or a reader's batch at once), complete windows
 /// come out.
 ///
@@ -156,7 +159,9 @@ impl Buffer {
 /// time windows when an event at or after their end arrives. The stream's tail, shorter than
 /// one stride, makes no window, except that a stream too short for any window is one window.
 /// Time windows hold at most `capacity` events: beyond it the oldest are dropped
-/// ([`Cutter::dropped`]).
+/// ([`Cutter::dropped`]). A gap without events gives at most [`MAX_GAP_WINDOWS`] empty time
+/// windows; those before them are skipped and counted ([`Cutter::skipped`]), so that a
+/// timestamp jump (a glitch of hours) costs no billion empty estimates.
 #[derive(Debug)]
 pub struct Cutter {
     rule: WindowRule,
@@ -164,6 +169,7 @@ pub struct Cutter {
     capacity: usize,
     emitted: usize,
     dropped: u64,
+    skipped: u64,
     /// Time windows: the end of the next window, µs (set by the first event).
     next_end: Option<i64>,
     /// Event windows: events to take before the next window is complete.
@@ -185,6 +191,7 @@ impl Cutter {
             capacity,
             emitted: 0,
             dropped: 0,
+            skipped: 0,
             next_end: None,
             until_window: match rule {
                 WindowRule::Events { size, .. } => u64::from(size),
@@ -201,6 +208,11 @@ impl Cutter {
     /// Events dropped from over-full time windows.
     pub fn dropped(&self) -> u64 {
         self.dropped
+    }
+
+    /// Empty time windows skipped over gaps longer than [`MAX_GAP_WINDOWS`] windows.
+    pub fn skipped(&self) -> u64 {
+        self.skipped
     }
 
     /// Windows emitted so far.
@@ -256,6 +268,18 @@ impl Cutter {
                     while event.t >= end {
                         let start = end - size_us;
                         self.drop_before(start);
+                        if self.buffer.len() == 0 {
+                            // Every window from here to `event`'s is empty: keep the last
+                            // `MAX_GAP_WINDOWS` of them.
+                            let empty = event.t.saturating_sub(end) / stride_us + 1;
+                            let skip = empty - empty.min(MAX_GAP_WINDOWS);
+                            if skip > 0 {
+                                self.skipped += skip as u64;
+                                end = end.saturating_add(skip.saturating_mul(stride_us));
+                                self.next_end = Some(end);
+                                continue;
+                            }
+                        }
                         self.emit((start, end - 1), emit)?;
                         end = end.saturating_add(stride_us);
                         self.next_end = Some(end);
@@ -395,6 +419,33 @@ mod tests {
             w,
             vec![(vec![0, 5], (0, 9)), (vec![], (10, 19)), (vec![], (20, 29))]
         );
+        // A jump of a million windows (a glitched timestamp) gives only the last
+        // `MAX_GAP_WINDOWS` empty ones, the rest counted as skipped, and so does a second gap
+        // of three times that; windows keep their times. Sliding windows likewise.
+        for (size_us, stride_us) in [(1_000, 1_000), (3_000, 1_000)] {
+            let rule = WindowRule::Time { size_us, stride_us };
+            let mut c = Cutter::new(rule, 100).unwrap();
+            let mut got = Vec::new();
+            let jump = 1_000_000_000 + 500;
+            let last = jump + 3 * MAX_GAP_WINDOWS * stride_us;
+            for t in [0, 10, jump, last] {
+                c.push(0, Event::new(0, 0, t, true), &mut |w| {
+                    got.push((w.len(), w.t_us));
+                    Ok(())
+                })
+                .unwrap();
+            }
+            let empty = got.iter().filter(|(n, _)| *n == 0).count() as i64;
+            assert_eq!(empty, 2 * MAX_GAP_WINDOWS, "{size_us}");
+            // Every window that ends by the last event is emitted or skipped.
+            let ends = (last - size_us) / stride_us + 1;
+            assert_eq!(c.skipped() as i64 + c.windows() as i64, ends, "{size_us}");
+            assert_eq!(c.windows(), got.len());
+            // Times run on: the windows just before the jumped event end just before it.
+            let before = got.iter().rev().find(|(_, (_, t1))| *t1 < jump).unwrap();
+            assert!(jump - before.1 .1 <= stride_us, "{before:?}");
+            assert!(got.windows(2).all(|w| w[1].1 .0 > w[0].1 .0));
+        }
         // Over capacity, the oldest events go and are counted.
         let mut c = Cutter::new(
             WindowRule::Time {
