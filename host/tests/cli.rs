@@ -981,3 +981,28 @@ fn run_errors_leave_well_formed_outputs() {
     assert!(err.contains("no directory"), "{err}");
     assert!(!out.exists());
 }
+
+#[test]
+fn run_keeps_the_sensor_size_the_file_states() {
+    // The bundled clip's AEDAT 2.0 header states DHP19's 346 × 260: --width/--height, which
+    // describe files that state no size, change nothing.
+    let clip =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/clip/S4242-00_side-kick.aedat");
+    let (plain, flagged) = (tmp("size-plain.json"), tmp("size-flagged.json"));
+    evpose(&["run", "--events", s(&clip), "--out", s(&plain)]);
+    evpose(&[
+        "run",
+        "--events",
+        s(&clip),
+        "--width",
+        "640",
+        "--height",
+        "480",
+        "--out",
+        s(&flagged),
+    ]);
+    assert_eq!(
+        std::fs::read(&plain).unwrap(),
+        std::fs::read(&flagged).unwrap()
+    );
+}

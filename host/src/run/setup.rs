@@ -239,13 +239,16 @@ impl Plan {
         let cameras = ids
             .iter()
             .map(|&id| {
-                // A file that states no sensor size (npy, text) is taken to be at the model's
-                // resolution; events beyond it are dropped by the rasterizer and counted.
-                let stated = req.open.size.or_else(|| {
-                    let c = info.cameras.iter().find(|c| c.id == id)?;
-                    Some((c.width?, c.height?))
-                });
-                let sensor = stated.unwrap_or(model_size);
+                // The size the file states wins (as in every reader: `OpenOptions::size`), then
+                // `--width/--height`; a file that states none (npy, text) without them is taken
+                // to be at the model's resolution, events beyond it dropped by the rasterizer
+                // and counted.
+                let stated = info
+                    .cameras
+                    .iter()
+                    .find(|c| c.id == id)
+                    .and_then(|c| Some((c.width?, c.height?)));
+                let sensor = stated.or(req.open.size).unwrap_or(model_size);
                 Ok(CameraSetup {
                     id,
                     rescale: Rescale {
