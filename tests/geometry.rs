@@ -148,3 +148,24 @@ fn triangulation_matches_the_numpy_reference() {
     }
     eprintln!("numpy reference: worst difference {worst:e} mm over 64 noisy joint pairs");
 }
+
+#[test]
+fn the_same_camera_twice_has_no_baseline() {
+    // Two views through one calibration meet at its centre whatever they see (the point they
+    // would give is the camera itself): refused, also beside a third view at that centre.
+    let (a, b) = front();
+    let (pa, qa) = (
+        a.project([0.0, 0.0, 1000.0]).unwrap(),
+        a.project([300.0, -300.0, 500.0]).unwrap(),
+    );
+    let err = evpose_core::geometry::triangulate_views(&[(&a, pa, 1.0), (&a, qa, 1.0)]);
+    assert_eq!(err, Err(GeometryError::NoBaseline));
+    assert_eq!(
+        triangulate(&a, pa, &a.clone(), qa),
+        Err(GeometryError::NoBaseline)
+    );
+    // With a second camera it triangulates.
+    let x = [0.0, 0.0, 1000.0];
+    let got = triangulate(&a, a.project(x).unwrap(), &b, b.project(x).unwrap()).unwrap();
+    assert!(max_abs_diff(got, x) < TOLERANCE_MM);
+}

@@ -86,6 +86,9 @@ pub enum GeometryError {
     DegenerateRay,
     /// The two rays are parallel (see [`MIN_RAY_SINE`]): they have no unique closest point.
     ParallelRays,
+    /// The cameras' centres coincide (the same calibration twice): their rays meet at that
+    /// centre whatever they see, so there is no baseline to triangulate from.
+    NoBaseline,
     /// Fewer than two views with a positive weight ([`triangulate_views`]).
     TooFewViews {
         /// Views with a positive weight.
@@ -113,6 +116,7 @@ impl fmt::Display for GeometryError {
                 write!(f, "back-projected point coincides with the camera centre")
             }
             Self::ParallelRays => write!(f, "the two rays are parallel"),
+            Self::NoBaseline => write!(f, "the cameras' centres coincide: no baseline"),
             Self::TooFewViews { views } => write!(
                 f,
                 "{views} view(s) with a positive weight; triangulation needs two"
@@ -308,8 +312,9 @@ pub fn triangulate(
 /// # Errors
 /// [`GeometryError::NonFinite`] for a negative or non-finite weight, [`GeometryError::TooFewViews`]
 /// when fewer than two views have a positive weight, those of [`Camera::back_project`] for any
-/// used point, [`GeometryError::DegenerateRay`], and [`GeometryError::ParallelRays`] when no two
-/// used rays are at least [`MIN_RAY_SINE`] apart.
+/// used point, [`GeometryError::DegenerateRay`], [`GeometryError::ParallelRays`] when no two
+/// used rays are at least [`MIN_RAY_SINE`] apart, and [`GeometryError::NoBaseline`] when the
+/// used cameras all have the same centre.
 pub fn triangulate_views(views: &[(&Camera, (f64, f64), f64)]) -> Result<[f64; 3], GeometryError> {
     if views.iter().any(|v| !(v.2.is_finite() && v.2 >= 0.0)) {
         return Err(GeometryError::NonFinite);
@@ -320,17 +325,23 @@ pub fn triangulate_views(views: &[(&Camera, (f64, f64), f64)]) -> Result<[f64; 3
     }
     // Normal equations of min_p Σ wᵢ |(I − nᵢnᵢᵀ)(p − cᵢ)|²: R p = q.
     let (mut r, mut q) = (Matrix3::zeros(), Vector3::zeros());
-    let mut first: Option<Vector3<f64>> = None;
-    let mut spread = false;
+    let mut first: Option<(Vector3<f64>, Vector3<f64>)> = None;
+    let (mut spread, mut baseline) = (false, false);
     for &(cam, point, w) in views.iter().filter(|v| v.2 > 0.0) {
         let n = cam.ray(point)?;
         match first {
-            None => first = Some(n),
-            Some(f) => spread |= f.cross(&n).norm() >= MIN_RAY_SINE,
+            None => first = Some((n, cam.centre)),
+            Some((f, c)) => {
+                spread |= f.cross(&n).norm() >= MIN_RAY_SINE;
+                baseline |= cam.centre != c;
+            }
         }
         let proj = projector(&n);
         r += proj * w;
         q += proj * cam.centre * w;
+    }
+    if !baseline {
+        return Err(GeometryError::NoBaseline);
     }
     if !spread {
         return Err(GeometryError::ParallelRays);

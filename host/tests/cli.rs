@@ -1006,3 +1006,14 @@ fn run_keeps_the_sensor_size_the_file_states() {
         std::fs::read(&flagged).unwrap()
     );
 }
+
+#[test]
+fn run_refuses_a_camera_listed_twice() {
+    let clip =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/clip/S4242-00_side-kick.aedat");
+    let err = evpose_err(&["run", "--events", s(&clip), "--cameras", "2,2"]);
+    assert!(
+        err.contains("camera 2 is listed twice in --cameras"),
+        "{err}"
+    );
+}

@@ -131,6 +131,9 @@ impl Plan {
         if let Some(bad) = ids.iter().find(|c| !have.contains(c)) {
             bail!("{events_name} has no camera {bad} (cameras {have:?})");
         }
+        if let Some((_, c)) = ids.iter().enumerate().find(|(i, c)| ids[..*i].contains(c)) {
+            bail!("camera {c} is listed twice in --cameras");
+        }
         let recording_cameras = info.cameras.len().max(1) as u32;
 
         // The model and its engine.
