@@ -81,8 +81,10 @@ pub struct RunArgs {
     /// latency (default: the window, no overlap).
     #[arg(long)]
     pub stride: Option<f64>,
-    /// Most events a time window holds (the oldest beyond it are dropped and counted).
-    #[arg(long, default_value_t = DEFAULT_TIME_WINDOW_CAPACITY)]
+    /// Most events a time window holds (the oldest beyond it are dropped and counted), up to
+    /// 2^32 − 1.
+    #[arg(long, default_value_t = DEFAULT_TIME_WINDOW_CAPACITY,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=u64::from(u32::MAX)))]
     pub max_window_events: usize,
     /// Points per network input (default: the model's).
     #[arg(long)]

@@ -125,6 +125,13 @@ pub trait CameraEstimator {
     fn joints(&self) -> usize;
 }
 
+/// A window's capacity as the rasterizer takes it (32 bits): larger is an error, not a
+/// truncation.
+fn window_capacity(capacity: usize) -> Result<u32> {
+    u32::try_from(capacity)
+        .map_err(|_| anyhow::anyhow!("windows of {capacity} events: at most 2^32 - 1"))
+}
+
 /// Time slices of the rasterization (the paper's K), per the model when it records them.
 fn slices(recorded: u8) -> u8 {
     if recorded == 0 {
@@ -188,7 +195,7 @@ pub fn core_estimators<'m>(
     let k = slices(model.preprocessing().slices);
     (0..cameras)
         .map(|i| -> Result<Box<dyn CameraEstimator + 'm>> {
-            let raster = pipeline::rasterizer(size, k, capacity as u32)?;
+            let raster = pipeline::rasterizer(size, k, window_capacity(capacity)?)?;
             let plan = runner.plan()?;
             let estimator = Estimator::new(plan, points, seed.wrapping_add(i as u64));
             let session = Session::new(raster, estimator);
@@ -244,7 +251,7 @@ impl TractCamera {
             .run(&vec![[0.0; 5]; points.max(1)])
             .with_context(|| format!("{}: a trial inference", onnx.display()))?;
         let size = (probe.width() as u16, probe.height() as u16);
-        let raster = pipeline::rasterizer(size, slices(0), capacity as u32)?;
+        let raster = pipeline::rasterizer(size, slices(0), window_capacity(capacity)?)?;
         Ok((
             Self {
                 raster,
@@ -295,7 +302,7 @@ impl TractCamera {
     /// optimization), its sampler seeded with `seed`.
     pub fn with_seed(&self, seed: u64) -> Result<Self> {
         let c = *self.raster.config();
-        let capacity = self.capacity as u32;
+        let capacity = window_capacity(self.capacity)?;
         Ok(Self {
             raster: pipeline::rasterizer((c.width, c.height), c.slices, capacity)?,
             rng: evpose_core::rng_from_seed(seed),
