@@ -1008,7 +1008,7 @@ fn run_keeps_the_sensor_size_the_file_states() {
 }
 
 #[test]
-fn run_refuses_a_camera_listed_twice() {
+fn run_refuses_a_camera_listed_twice_and_oversized_windows() {
     let clip =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/clip/S4242-00_side-kick.aedat");
     let err = evpose_err(&["run", "--events", s(&clip), "--cameras", "2,2"]);
@@ -1016,4 +1016,7 @@ fn run_refuses_a_camera_listed_twice() {
         err.contains("camera 2 is listed twice in --cameras"),
         "{err}"
     );
+    // 2^32 + 1 would have been truncated to windows of one event.
+    let err = evpose_err(&["run", "--max-window-events", "4294967297"]);
+    assert!(err.contains("4294967297 is not in 1..=4294967295"), "{err}");
 }
