@@ -1020,3 +1020,30 @@ fn run_refuses_a_camera_listed_twice_and_oversized_windows() {
     let err = evpose_err(&["run", "--max-window-events", "4294967297"]);
     assert!(err.contains("4294967297 is not in 1..=4294967295"), "{err}");
 }
+
+#[test]
+fn quantize_records_the_point_count_it_was_asked_for() {
+    // With --points 0 (every point of each calibration window) the blob records 0, "any";
+    // it recorded the first window's point count, which `run` then resampled every window to.
+    for (points, want) in [(Some("0"), 0), (Some("1024"), 1024), (None, 2048)] {
+        let out = tmp(&format!("q-{}.evq", points.unwrap_or("default")));
+        let model = fixture("pointnet-small.onnx");
+        let calib = fixture("street-00.events.npy");
+        let mut args = vec![
+            "quantize",
+            "--model",
+            s(&model),
+            "--calib",
+            s(&calib),
+            "--out",
+            s(&out),
+        ];
+        if let Some(p) = points {
+            args.extend(["--points", p]);
+        }
+        evpose(&args);
+        let blob = evpose_host::model::AlignedBlob::new(&std::fs::read(&out).unwrap());
+        let m = evpose_core::Model::parse(blob.bytes()).unwrap();
+        assert_eq!(m.preprocessing().points, want, "{points:?}");
+    }
+}

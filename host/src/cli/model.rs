@@ -213,8 +213,11 @@ pub fn quantize(a: &QuantizeArgs) -> Result<()> {
     bar.finish_and_clear();
     let mut q = quantize::quantize(&net, &ranges)?;
     // The preprocessing the calibration windows had travels with the model.
+    // The point count the calibration asked for (0 with --points 0: any), not the first
+    // window's, which with --points 0 is just that window's size.
+    let points = a.sampling.sampling().points_for(net.points)?;
     q.preprocessing = evpose_core::model::Preprocessing {
-        points: inputs[0].len() as u32,
+        points: u32::try_from(points).context("too many points per input")?,
         window_events: a.sampling.window_events,
         slices: evpose_core::raster::DEFAULT_SLICES,
     };
