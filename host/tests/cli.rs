@@ -1047,3 +1047,48 @@ fn quantize_records_the_point_count_it_was_asked_for() {
         assert_eq!(m.preprocessing().points, want, "{points:?}");
     }
 }
+
+#[test]
+fn run_leaves_a_camera_without_events_out_of_3d_and_the_no_body_test() {
+    // The bundled clip without camera 3's events: camera 2 alone sees the subject, so no
+    // window has 3-D joints (one view) and none is judged empty of a body because of camera
+    // 3's guesses; the summary says so.
+    let clip = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/clip");
+    let events: Vec<encoders::Ev> = read_all(&clip.join("S4242-00_side-kick.aedat"))
+        .into_iter()
+        .filter(|&(c, _)| c != 3)
+        .map(|(c, e)| encoders::ev(c, e.x, e.y, e.t, e.on))
+        .collect();
+    let dir = tmp("dead-camera");
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("S4242-00_side-kick.aedat");
+    std::fs::write(&path, encoders::aedat2_davis346(&events, true)).unwrap();
+    std::fs::copy(
+        clip.join("S4242-00_side-kick.gt.npy"),
+        dir.join("S4242-00_side-kick.gt.npy"),
+    )
+    .unwrap();
+    let out = dir.join("dead.json");
+    let text = evpose(&["run", "--events", s(&path), "--out", s(&out)]);
+    let windows: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert!(
+        text.contains(&format!(
+            "{} camera windows without events: left out of triangulation",
+            windows.len()
+        )),
+        "{text}"
+    );
+    for w in &windows {
+        assert_eq!(w["cameras"][1]["events"], 0);
+        assert!(
+            w["joints3d"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .all(|j| j.is_null()),
+            "{w}"
+        );
+        assert_eq!(w["no_body"], false, "{}", w["window"]);
+    }
+}

@@ -299,6 +299,12 @@ fn print_summary(s: &RunSummary, synthetic: bool) {
             String::new()
         }
     );
+    if s.empty_views > 0 {
+        println!(
+            "{} camera windows without events: left out of triangulation and of the no-body test",
+            s.empty_views
+        );
+    }
     if s.skipped_windows > 0 {
         println!(
             "skipped {} empty windows over gaps longer than {} windows (a timestamp jump?)",

@@ -247,7 +247,10 @@ pub struct RunSummary {
     pub dropped: u64,
     /// Empty time windows skipped over long gaps (beyond `windows::MAX_GAP_WINDOWS` in a row).
     pub skipped_windows: u64,
-    /// Mean joint confidence over all windows and cameras.
+    /// Camera windows without events: guesses, left out of triangulation, of the views'
+    /// disagreement, of the no-body test and of the mean confidence.
+    pub empty_views: usize,
+    /// Mean joint confidence over all windows and the cameras that saw events in them.
     pub mean_confidence: Option<f64>,
     /// Windows that show no body ([`no_body_seen`]).
     pub no_body_windows: usize,
@@ -279,11 +282,13 @@ fn mean((s, n): (f64, u64)) -> Option<f64> {
 }
 
 /// Triangulates each joint from the views of `cams` (`joints[i]` and `confidence[i]` of camera
-/// `i`); `None` when fewer than two cameras are calibrated.
+/// `i`) that saw events (`seen[i]`: a camera without events in the window has only a guess);
+/// `None` when fewer than two cameras are calibrated.
 fn triangulate_window(
     cams: &[CameraSetup],
     joints: &[&[[f32; 2]]],
     confidence: &[&[f32]],
+    seen: &[bool],
 ) -> Option<Vec<Option<[f64; 3]>>> {
     let calibrated: Vec<usize> = (0..cams.len())
         .filter(|&i| cams[i].calibration.is_some())
@@ -300,9 +305,12 @@ fn triangulate_window(
                     .filter_map(|&i| {
                         let cam = cams[i].calibration.as_ref()?;
                         let [u, v] = joints[i][j];
-                        let w = confidence[i]
-                            .get(j)
-                            .map_or(1.0, |&c| f64::from(c).max(MIN_VIEW_WEIGHT));
+                        // Weight 0 leaves the view out.
+                        let w = match confidence[i].get(j) {
+                            _ if !seen.get(i).copied().unwrap_or(true) => 0.0,
+                            Some(&c) => f64::from(c).max(MIN_VIEW_WEIGHT),
+                            None => 1.0,
+                        };
                         Some((cam, (f64::from(u), f64::from(v)), w))
                     })
                     .collect();
@@ -314,7 +322,8 @@ fn triangulate_window(
 
 /// How far a window's views disagree: the mean distance, pixels, between each calibrated
 /// camera's `joints` and the projection of the triangulated `joints3d` into it, over every
-/// joint that was triangulated and projects (`None` without calibrated views or 3-D joints).
+/// joint that was triangulated and projects and every camera that saw events (`seen`; all
+/// when it is shorter); `None` without such views or 3-D joints.
 /// Views of one body agree to a few pixels (median 3.2 px on the held-out synthetic test
 /// subject, the network's joints before the filter); guesses on a scene without a person do
 /// not (median 10.3 px). `evpose run` measures it on the network's joints before the temporal
@@ -324,12 +333,16 @@ pub fn view_disagreement_px(
     cams: &[CameraSetup],
     joints: &[&[[f32; 2]]],
     joints3d: &[Option<[f64; 3]>],
+    seen: &[bool],
 ) -> Option<f64> {
     let (mut sum, mut n) = (0f64, 0u32);
-    for (cam, joints) in cams.iter().zip(joints) {
+    for (i, (cam, joints)) in cams.iter().zip(joints).enumerate() {
         let Some(calibration) = &cam.calibration else {
             continue;
         };
+        if !seen.get(i).copied().unwrap_or(true) {
+            continue;
+        }
         for (&[u, v], x) in joints.iter().zip(joints3d) {
             if let Some((pu, pv)) = x.and_then(|x| calibration.project(x)) {
                 sum += (pu - f64::from(u)).hypot(pv - f64::from(v));
@@ -443,20 +456,34 @@ where
         }
         let confs: Vec<&[f32]> = poses.iter().map(|p| p.confidence.as_slice()).collect();
         let out_joints: Vec<&[[f32; 2]]> = poses.iter().map(|p| p.joints.as_slice()).collect();
-        let joints3d = triangulate_window(&opts.cameras, &out_joints, &confs);
-        let all: Vec<f32> = confs.iter().flat_map(|c| c.iter().copied()).collect();
+        // A camera without events in the window has a guess, not a view: it is left out of the
+        // triangulation, the views' disagreement and the no-body test.
+        let seen: Vec<bool> = poses.iter().map(|p| p.events > 0).collect();
+        self.summary.empty_views += seen.iter().filter(|&&s| !s).count();
+        let joints3d = triangulate_window(&opts.cameras, &out_joints, &confs, &seen);
+        let all: Vec<f32> = confs
+            .iter()
+            .zip(&seen)
+            .filter(|(_, &s)| s)
+            .flat_map(|(c, _)| c.iter().copied())
+            .collect();
+        let has_confidence = confs.iter().any(|c| !c.is_empty());
         // The network's own joints (before the filter) in 3-D, for the views' disagreement and
         // the unfiltered error.
         let raw_refs: Vec<&[[f32; 2]]> = raws.iter().map(|r| r.as_slice()).collect();
         let raw3d = if filter_on {
-            triangulate_window(&opts.cameras, &raw_refs, &confs)
+            triangulate_window(&opts.cameras, &raw_refs, &confs, &seen)
         } else {
             joints3d.clone()
         };
         let disagreement = raw3d
             .as_deref()
-            .and_then(|j3| view_disagreement_px(&opts.cameras, &raw_refs, j3));
-        let no_body = (!all.is_empty()).then(|| {
+            .and_then(|j3| view_disagreement_px(&opts.cameras, &raw_refs, j3, &seen));
+        // With confidences: judged on the cameras that saw events; no camera saw any, no body.
+        let no_body = has_confidence.then(|| {
+            if all.is_empty() {
+                return true;
+            }
             let m = all.iter().sum::<f32>() / all.len() as f32;
             self.conf.0 += all.iter().map(|&c| f64::from(c)).sum::<f64>();
             self.conf.1 += all.len() as u64;
@@ -765,15 +792,24 @@ mod tests {
                 .collect()
         };
         let (a, mut b, c) = (view(&cams[0]), view(&cams[1]), vec![[5.0, 5.0]; 3]);
-        let d = view_disagreement_px(&cams, &[&a, &b, &c], &points).unwrap();
+        let all = [true; 3];
+        let d = view_disagreement_px(&cams, &[&a, &b, &c], &points, &all).unwrap();
         assert!(d < 1e-3, "{d}");
         // One joint of one view 10 px off: 10 px over the 4 projected joint views.
         b[0][0] += 10.0;
-        let d = view_disagreement_px(&cams, &[&a, &b, &c], &points).unwrap();
+        let d = view_disagreement_px(&cams, &[&a, &b, &c], &points, &all).unwrap();
         assert!((d - 2.5).abs() < 1e-3, "{d}");
+        // That view without events (a guess) is left out: the other one agrees.
+        let seen = [true, false, true];
+        let d = view_disagreement_px(&cams, &[&a, &b, &c], &points, &seen).unwrap();
+        assert!(d < 1e-3, "{d}");
         // Nothing triangulated, or no calibration: nothing to compare.
-        assert_eq!(view_disagreement_px(&cams, &[&a, &b, &c], &[None; 3]), None);
-        assert_eq!(view_disagreement_px(&cams[2..], &[&c], &points), None);
+        let none = [None; 3];
+        assert_eq!(
+            view_disagreement_px(&cams, &[&a, &b, &c], &none, &all),
+            None
+        );
+        assert_eq!(view_disagreement_px(&cams[2..], &[&c], &points, &all), None);
     }
 
     #[test]
