@@ -313,8 +313,8 @@ pub fn triangulate(
 /// [`GeometryError::NonFinite`] for a negative or non-finite weight, [`GeometryError::TooFewViews`]
 /// when fewer than two views have a positive weight, those of [`Camera::back_project`] for any
 /// used point, [`GeometryError::DegenerateRay`], [`GeometryError::ParallelRays`] when no two
-/// used rays are at least [`MIN_RAY_SINE`] apart, and [`GeometryError::NoBaseline`] when the
-/// used cameras all have the same centre.
+/// used rays are at least [`MIN_RAY_SINE`] apart, and [`GeometryError::NoBaseline`] when they
+/// are but the used cameras all have the same centre.
 pub fn triangulate_views(views: &[(&Camera, (f64, f64), f64)]) -> Result<[f64; 3], GeometryError> {
     if views.iter().any(|v| !(v.2.is_finite() && v.2 >= 0.0)) {
         return Err(GeometryError::NonFinite);
@@ -340,11 +340,11 @@ pub fn triangulate_views(views: &[(&Camera, (f64, f64), f64)]) -> Result<[f64; 3
         r += proj * w;
         q += proj * cam.centre * w;
     }
-    if !baseline {
-        return Err(GeometryError::NoBaseline);
-    }
     if !spread {
         return Err(GeometryError::ParallelRays);
+    }
+    if !baseline {
+        return Err(GeometryError::NoBaseline);
     }
     let p = r.cholesky().ok_or(GeometryError::ParallelRays)?.solve(&q);
     if !all_finite(p.iter()) {
