@@ -141,11 +141,24 @@ impl Importer {
             })?;
             vals.insert(OutletId::new(id, 0), out);
         }
-        let outputs: Vec<&Val> = model
-            .output_outlets()?
+        let outlets = model.output_outlets()?;
+        let mut outputs: Vec<&Val> = outlets
             .iter()
             .map(|o| vals.get(o).ok_or_else(|| anyhow!("output not computed")))
             .collect::<Result<_>>()?;
+        // The heads are taken in output order (x, then y) unless their names say otherwise:
+        // an export whose outputs are named `…y`, `…x` (e.g. `simdr_y`, `simdr_x`) is swapped.
+        let axis = |o: &OutletId| {
+            model
+                .outlet_label(*o)
+                .and_then(|l| l.trim().chars().last())
+                .map(|c| c.to_ascii_lowercase())
+        };
+        if let [a, b] = outlets {
+            if (axis(a), axis(b)) == (Some('y'), Some('x')) {
+                outputs.swap(0, 1);
+            }
+        }
         let heads: Vec<Dense> = outputs
             .iter()
             .map(|v| match v {
@@ -555,6 +568,28 @@ fn broadcast(c: &[f32], n: usize) -> Result<Vec<f32>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn heads_are_matched_by_their_output_names() {
+        // The small fixture with its outputs listed as (simdr_y, simdr_x): the same heads.
+        use prost::Message;
+        let path =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/pointnet-small.onnx");
+        let want = import_onnx(&path).unwrap();
+        let mut proto =
+            tract_onnx::pb::ModelProto::decode(&*std::fs::read(&path).unwrap()).unwrap();
+        let graph = proto.graph.as_mut().unwrap();
+        assert_eq!(graph.output[0].name, "simdr_x");
+        graph.output.swap(0, 1);
+        let swapped =
+            std::env::temp_dir().join(format!("evpose-swapped-{}.onnx", std::process::id()));
+        std::fs::write(&swapped, proto.encode_to_vec()).unwrap();
+        let got = import_onnx(&swapped);
+        std::fs::remove_file(&swapped).unwrap();
+        let got = got.unwrap();
+        assert_eq!((got.head_x.out_dim, got.head_y.out_dim), (346, 260));
+        assert_eq!(got, want);
+    }
 
     #[test]
     fn concatenations_off_the_channel_axis_are_refused() {
