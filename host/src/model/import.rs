@@ -50,7 +50,7 @@ enum Val {
     Head(Box<Dense>),
 }
 
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 struct Pending {
     stage: Stage,
     layer: Dense,
@@ -67,6 +67,9 @@ struct Importer {
     point: Vec<Dense>,
     fc: Vec<Dense>,
     points: usize,
+    /// Pending layers already finalized without an activation, with what they became: a
+    /// layer read twice (by a max and a mean) is one layer, not two.
+    settled: Vec<(Pending, Val)>,
 }
 
 /// Imports an ONNX export of the paper's network family.
@@ -92,6 +95,7 @@ pub fn import_onnx(path: &Path) -> Result<FloatNet> {
         point: Vec::new(),
         fc: Vec::new(),
         points: n,
+        settled: Vec::new(),
     }
     .run(&typed)
     .with_context(|| {
@@ -359,10 +363,18 @@ impl Importer {
         }
     }
 
-    /// Finalizes a pending layer used without activation.
+    /// Finalizes a pending layer used without activation (once: a second reader gets the same
+    /// layer).
     fn settle(&mut self, v: &Val) -> Result<Val> {
         match v {
-            Val::Lin(_) => self.activate(v, None),
+            Val::Lin(p) => {
+                if let Some((_, done)) = self.settled.iter().find(|(q, _)| q == p) {
+                    return Ok(done.clone());
+                }
+                let done = self.activate(v, None)?;
+                self.settled.push((p.clone(), done.clone()));
+                Ok(done)
+            }
             other => Ok(other.clone()),
         }
     }
@@ -407,6 +419,16 @@ impl Importer {
             .outlet_fact(OutletId::new(node.id, 0))?
             .shape
             .to_tvec();
+        // A point or FC layer without an activation is final once reshaped (the last FC
+        // viewed as joints); a head's output stays what it is.
+        let settled;
+        let v = match v {
+            Val::Lin(p) if p.stage != Stage::Head => {
+                settled = self.settle(v)?;
+                &settled
+            }
+            other => other,
+        };
         Ok(match v {
             Val::Vector(Some(i)) if shape.len() == 3 && *i + 1 == self.fc.len() => {
                 let d = shape[2].to_usize()?;
@@ -569,24 +591,67 @@ fn broadcast(c: &[f32], n: usize) -> Result<Vec<f32>> {
 mod tests {
     use super::*;
 
-    #[test]
-    fn heads_are_matched_by_their_output_names() {
-        // The small fixture with its outputs listed as (simdr_y, simdr_x): the same heads.
+    /// The small fixture's protobuf.
+    fn small_proto() -> tract_onnx::pb::ModelProto {
         use prost::Message;
         let path =
             Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/pointnet-small.onnx");
-        let want = import_onnx(&path).unwrap();
-        let mut proto =
-            tract_onnx::pb::ModelProto::decode(&*std::fs::read(&path).unwrap()).unwrap();
+        tract_onnx::pb::ModelProto::decode(&*std::fs::read(path).unwrap()).unwrap()
+    }
+
+    /// Imports `proto` (through a temporary file).
+    fn import_proto(proto: &tract_onnx::pb::ModelProto, name: &str) -> Result<FloatNet> {
+        use prost::Message;
+        let path = std::env::temp_dir().join(format!("evpose-{name}-{}.onnx", std::process::id()));
+        std::fs::write(&path, proto.encode_to_vec()).unwrap();
+        let net = import_onnx(&path);
+        std::fs::remove_file(&path).unwrap();
+        net
+    }
+
+    #[test]
+    fn layers_without_activation_read_twice_or_reshaped_import() {
+        // conv5 without its LeakyReLU (read by both pools) and the last FC without its own
+        // (reshaped into the joints' features): one layer each, without a slope.
+        let mut proto = small_proto();
+        let graph = proto.graph.as_mut().unwrap();
+        for name in ["/conv5/conv5.2/LeakyRelu", "/out2/out2.2/LeakyRelu"] {
+            let at = graph.node.iter().position(|n| n.name == name).unwrap();
+            let node = graph.node.remove(at);
+            let (x, y) = (&node.input[0], &node.output[0]);
+            for input in graph.node.iter_mut().flat_map(|n| n.input.iter_mut()) {
+                if input == y {
+                    *input = x.clone();
+                }
+            }
+        }
+        let want = import_onnx(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/pointnet-small.onnx"),
+        )
+        .unwrap();
+        let got = import_proto(&proto, "no-activation").unwrap();
+        assert_eq!(
+            (got.point.len(), got.fc.len()),
+            (want.point.len(), want.fc.len())
+        );
+        assert_eq!(got.point[4].leaky, None);
+        assert_eq!(got.fc[1].leaky, None);
+        assert_eq!(got.point[4].w, want.point[4].w);
+        assert_eq!(got.fc[1].w, want.fc[1].w);
+    }
+
+    #[test]
+    fn heads_are_matched_by_their_output_names() {
+        // The small fixture with its outputs listed as (simdr_y, simdr_x): the same heads.
+        let want = import_onnx(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/pointnet-small.onnx"),
+        )
+        .unwrap();
+        let mut proto = small_proto();
         let graph = proto.graph.as_mut().unwrap();
         assert_eq!(graph.output[0].name, "simdr_x");
         graph.output.swap(0, 1);
-        let swapped =
-            std::env::temp_dir().join(format!("evpose-swapped-{}.onnx", std::process::id()));
-        std::fs::write(&swapped, proto.encode_to_vec()).unwrap();
-        let got = import_onnx(&swapped);
-        std::fs::remove_file(&swapped).unwrap();
-        let got = got.unwrap();
+        let got = import_proto(&proto, "swapped").unwrap();
         assert_eq!((got.head_x.out_dim, got.head_y.out_dim), (346, 260));
         assert_eq!(got, want);
     }
@@ -605,6 +670,7 @@ mod tests {
             point: vec![layer],
             fc: Vec::new(),
             points: 16,
+            settled: Vec::new(),
         };
         // `[max, mean]` of the last point layer: along the channels it is the pooled vector;
         // along the points axis (`torch.cat(.., dim=2)` before a flatten) it is refused.
