@@ -375,6 +375,18 @@ pub fn mean_label(
     }))
 }
 
+/// Whether ground truth of `len` samples from `gt_t0_us` covers a window spanning `(t0, t1)`
+/// µs: the window's middle lies within one sample period of the samples' span. A recording
+/// longer than its ground truth has windows it does not cover, which have no label.
+pub fn covers(len: usize, gt_t0_us: i64, (t0, t1): (i64, i64)) -> bool {
+    let mid = (t0 as f64 + t1 as f64) / 2.0;
+    let (first, last) = (
+        gt_t0_us as f64,
+        gt_t0_us as f64 + len.saturating_sub(1) as f64 * GT_PERIOD_US,
+    );
+    len > 0 && mid >= first - GT_PERIOD_US && mid <= last + GT_PERIOD_US
+}
+
 /// Index of the ground-truth sample nearest `t` µs (clamped to the recording).
 pub fn nearest_sample(len: usize, gt_t0_us: i64, t: i64) -> usize {
     let k = ((t - gt_t0_us) as f64 / GT_PERIOD_US).round();

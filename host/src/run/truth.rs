@@ -59,9 +59,14 @@ impl Truth {
     }
 
     /// The label of a window spanning `t_us`: the mean of the samples inside it (the nearest
-    /// one when none is); `first_event_t` stands for the start of a `.mat`'s clock.
+    /// one when none is); `None` for a window the ground truth does not cover
+    /// ([`crate::dataset::covers`]). `first_event_t` stands for the start of a `.mat`'s clock.
     pub fn label(&self, t_us: (i64, i64), first_event_t: i64) -> Option<[[f32; 3]; JOINTS]> {
-        mean_label(&self.poses, self.t0_us.unwrap_or(first_event_t), t_us)
+        let t0 = self.t0_us.unwrap_or(first_event_t);
+        if !crate::dataset::covers(self.poses.len(), t0, t_us) {
+            return None;
+        }
+        mean_label(&self.poses, t0, t_us)
     }
 }
 
@@ -85,4 +90,30 @@ pub fn calibration(dir: Option<&Path>, info: &StreamInfo, camera: u8) -> Result<
 pub fn calibration_beside(events: &Path) -> Option<PathBuf> {
     let dir = events.parent()?.join("calibration");
     dir.join(crate::dhp19::POSITIONS).is_file().then_some(dir)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn windows_beyond_the_ground_truth_have_no_label() {
+        // One second of ground truth (100 samples from t = 0) against windows over three.
+        let truth = Truth {
+            poses: vec![[[1.0; 3]; JOINTS]; 100],
+            t0_us: Some(0),
+        };
+        assert!(truth.label((0, 99_999), 0).is_some());
+        assert!(truth.label((950_000, 1_000_000), 0).is_some());
+        // Half a period past the last sample (990 ms): still its label.
+        assert!(truth.label((995_000, 1_000_000), 0).is_some());
+        assert!(truth.label((1_000_000, 1_099_999), 0).is_none());
+        assert!(truth.label((2_500_000, 2_600_000), 0).is_none());
+        assert!(truth.label((-200_000, -100_000), 0).is_none());
+        let none = Truth {
+            poses: Vec::new(),
+            t0_us: Some(0),
+        };
+        assert!(none.label((0, 10), 0).is_none());
+    }
 }
