@@ -230,7 +230,20 @@ pub fn quantize(net: &FloatNet, ranges: &Ranges) -> Result<QuantNet> {
         .enumerate()
         .map(|(i, ch)| {
             if i == 0 && n_point > 1 {
-                ch.iter().map(|&r| act_scale(r)).collect()
+                // A channel that never fired takes the layer's smallest live scale, not 1.0:
+                // its consumers fold its scale into their weights, and 1.0 beside small live
+                // scales (a model on normalized inputs: 0.02) would set their rows' maxima
+                // and crush the live channels' weights.
+                let smallest = ch
+                    .iter()
+                    .filter(|&&r| r > 0.0)
+                    .fold(f32::INFINITY, |a, &b| a.min(b));
+                ch.iter()
+                    .map(|&r| match r {
+                        _ if r > 0.0 => act_scale(r),
+                        _ => act_scale(if smallest.is_finite() { smallest } else { 0.0 }),
+                    })
+                    .collect()
             } else {
                 let m = ch.iter().fold(0f32, |a, &b| a.max(b));
                 vec![act_scale(m); ch.len()]
@@ -443,6 +456,40 @@ mod tests {
         assert_eq!(f.sw[2], 0.5 / 127.0);
         assert_eq!(f.w[8], 127);
         assert_eq!(f.sw[3], 1.0);
+    }
+
+    #[test]
+    fn a_first_layer_channel_that_never_fired_leaves_its_consumers_resolution() {
+        // The small model calibrated per channel, then one conv1 channel made dead (range 0):
+        // conv2's rows keep their other weights at full scale (±127 at each row's largest) as
+        // often as with the channel alive.
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures");
+        let net = super::super::import_onnx(&dir.join("pointnet-small.onnx")).unwrap();
+        let input = super::super::read_points(&dir.join("street-00.points.npy")).unwrap();
+        let mut ranges = calibrate(&net, &[input]).unwrap();
+        // conv1's outputs a hundred times smaller, as in a model on normalized inputs (its
+        // live scales then lie far below the 1.0 a dead channel used to get).
+        ranges.point[0].iter_mut().for_each(|r| *r /= 100.0);
+        // Rows of conv2 whose largest weight on the other channels is at full scale.
+        let full = |ranges: &Ranges| {
+            let q = quantize(&net, ranges).unwrap();
+            let QWeights::I8(w) = &q.layers[1].w else {
+                panic!("conv2 is int8")
+            };
+            w.chunks(q.layers[1].in_dim)
+                .filter(|row| {
+                    let others = row.iter().enumerate().filter(|&(j, _)| j != 3);
+                    others.map(|(_, v)| v.unsigned_abs()).max() == Some(127)
+                })
+                .count()
+        };
+        let alive = full(&ranges);
+        ranges.point[0][3] = 0.0;
+        let dead = full(&ranges);
+        assert!(
+            dead >= alive,
+            "{dead} rows at full scale, {alive} with the channel alive"
+        );
     }
 
     #[test]
