@@ -165,7 +165,11 @@ impl<'s> Smoother<'s> {
             .zip(out.iter_mut())
             .zip(self.state.chunks_exact_mut(2))
         {
-            let gate = if p.full_confidence > 0.0 {
+            // A NaN confidence (an f32 model's NaN logits) holds the joint, as 0 does, instead
+            // of poisoning its state until the next reset.
+            let gate = if c.is_nan() {
+                0.0
+            } else if p.full_confidence > 0.0 {
                 (c / p.full_confidence).clamp(0.0, 1.0)
             } else {
                 1.0
@@ -231,6 +235,13 @@ mod tests {
             "{sure:?} {unsure:?}"
         );
         assert_eq!(none[1], 100.0);
+        // A NaN confidence holds the joint like 0, and the next window moves it again.
+        let nan = run(
+            p,
+            &[(0, 100, 1.0), (33_000, 140, f32::NAN), (66_000, 140, 1.0)],
+        );
+        assert_eq!(nan[1], 100.0);
+        assert!(nan[2] > 100.0 && nan[2] < 140.0, "{nan:?}");
     }
 
     #[test]

@@ -58,15 +58,17 @@ pub const NO_BODY_VIEWS_SLOPE: f32 = 0.08;
 /// Whether a window shows no body, from its mean joint confidence over cameras and joints and,
 /// with two or more calibrated cameras, its [`view_disagreement_px`]: below
 /// [`NO_BODY_CONFIDENCE`] without one (or when it is not finite); below the line of
-/// [`NO_BODY_VIEWS_BASE`] with one.
+/// [`NO_BODY_VIEWS_BASE`] with one. A confidence that is not a number shows no body.
 pub fn no_body_seen(mean_confidence: f32, view_disagreement_px: Option<f64>) -> bool {
-    match view_disagreement_px {
+    let needed = match view_disagreement_px {
         Some(d) if d.is_finite() => {
             let d = (d as f32).max(1.0);
-            mean_confidence < NO_BODY_VIEWS_BASE + NO_BODY_VIEWS_SLOPE * d.ln()
+            NO_BODY_VIEWS_BASE + NO_BODY_VIEWS_SLOPE * d.ln()
         }
-        _ => mean_confidence < NO_BODY_CONFIDENCE,
-    }
+        _ => NO_BODY_CONFIDENCE,
+    };
+    // A NaN confidence is no evidence of a body (a plain `<` would say it is).
+    mean_confidence.is_nan() || mean_confidence < needed
 }
 
 /// The smallest weight a view gets in triangulation: a joint no camera is sure of is still
@@ -833,6 +835,9 @@ mod tests {
             NO_BODY_CONFIDENCE + 0.01,
             Some(f64::INFINITY)
         ));
+        // A NaN confidence is no evidence of a body.
+        assert!(no_body_seen(f32::NAN, None));
+        assert!(no_body_seen(f32::NAN, Some(2.0)));
     }
 
     /// Without `callback_events`, the fixed-lag filter's held windows keep no events and the
