@@ -1008,7 +1008,7 @@ fn run_keeps_the_sensor_size_the_file_states() {
 }
 
 #[test]
-fn run_refuses_a_camera_listed_twice_and_oversized_windows() {
+fn run_refuses_bad_or_ignored_arguments() {
     let clip =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/clip/S4242-00_side-kick.aedat");
     let err = evpose_err(&["run", "--events", s(&clip), "--cameras", "2,2"]);
@@ -1019,6 +1019,41 @@ fn run_refuses_a_camera_listed_twice_and_oversized_windows() {
     // 2^32 + 1 would have been truncated to windows of one event.
     let err = evpose_err(&["run", "--max-window-events", "4294967297"]);
     assert!(err.contains("4294967297 is not in 1..=4294967295"), "{err}");
+    // Options that would be ignored are refused.
+    let err = evpose_err(&["run", "--smooth", "off", "--lag", "2"]);
+    assert!(err.contains("--smooth off has none"), "{err}");
+    let err = evpose_err(&["run", "--render-scale", "2"]);
+    assert!(err.contains("--render"), "{err}");
+    // Windows in ms are reported with their unit.
+    let err = evpose_err(&["run", "--window-ms", "1", "--stride", "2"]);
+    assert!(err.contains("window 1000 µs and stride 2000 µs"), "{err}");
+}
+
+#[test]
+fn run_on_an_empty_recording_writes_no_empty_gif() {
+    let empty = tmp("empty.txt");
+    std::fs::write(&empty, "").unwrap();
+    let gif = tmp("empty.gif");
+    let _ = std::fs::remove_file(&gif);
+    let out = Command::new(env!("CARGO_BIN_EXE_evpose"))
+        .args([
+            "run",
+            "--events",
+            s(&empty),
+            "--format",
+            "text",
+            "--render",
+            s(&gif),
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(
+        err.contains("no windows:") && err.contains("not written"),
+        "{err}"
+    );
+    assert!(!gif.exists());
 }
 
 #[test]

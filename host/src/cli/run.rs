@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use evpose_core::smooth::{Filter, LagParams, SmoothParams};
 
@@ -95,9 +95,10 @@ pub struct RunArgs {
     /// The temporal filter over windows, weighted by the joints' confidences.
     #[arg(long, value_enum, default_value_t = Smooth::FixedLag)]
     pub smooth: Smooth,
-    /// Windows each side of the fixed-lag filter (its latency in windows).
-    #[arg(long, default_value_t = LagParams::DEFAULT.lag, value_parser = super::lag_in_range)]
-    pub lag: usize,
+    /// Windows each side of the fixed-lag filter (its latency in windows; default: 3). Only
+    /// with --smooth fixed-lag.
+    #[arg(long, value_parser = super::lag_in_range)]
+    pub lag: Option<usize>,
     /// Ground truth (`.gt.npy` of `evpose sim`, or DHP19's `.mat`; default: the one beside
     /// the recording, if any).
     #[arg(long)]
@@ -114,9 +115,9 @@ pub struct RunArgs {
     /// `.gif`, or numbered `.png` frames.
     #[arg(long)]
     pub render: Option<PathBuf>,
-    /// Magnification of --render.
-    #[arg(long, default_value_t = 1)]
-    pub render_scale: u32,
+    /// Magnification of --render (default: 1).
+    #[arg(long, requires = "render")]
+    pub render_scale: Option<u32>,
     /// Print every window's line (text), or with --json every window as a JSON line.
     #[arg(long, short)]
     pub verbose: bool,
@@ -132,6 +133,15 @@ pub fn run(a: &RunArgs) -> Result<()> {
             "--format/--width/--height/--time-unit describe --events; the bundled clip needs none"
         );
     }
+    if a.lag.is_some() && a.smooth != Smooth::FixedLag {
+        bail!(
+            "--lag sets the fixed-lag filter's window; --smooth {} has none",
+            match a.smooth {
+                Smooth::OneEuro => "one-euro",
+                _ => "off",
+            }
+        );
+    }
     let req = Request {
         window_events: a.window_events,
         window_ms: a.window_ms,
@@ -140,7 +150,7 @@ pub fn run(a: &RunArgs) -> Result<()> {
         seed: a.seed,
         filter: match a.smooth {
             Smooth::FixedLag => Filter::FixedLag(LagParams {
-                lag: a.lag,
+                lag: a.lag.unwrap_or(LagParams::DEFAULT.lag),
                 ..LagParams::DEFAULT
             }),
             Smooth::OneEuro => Filter::OneEuro(SmoothParams::DEFAULT),
@@ -183,7 +193,7 @@ pub fn run(a: &RunArgs) -> Result<()> {
             Some(RunRenderer::create(
                 path,
                 &sizes,
-                a.render_scale,
+                a.render_scale.unwrap_or(1),
                 plan.triangulates(),
             )?)
         }
@@ -233,8 +243,19 @@ pub fn run(a: &RunArgs) -> Result<()> {
     } else {
         print_summary(&summary, d.synthetic);
     }
-    if let (Some(path), Some(r)) = (&a.render, &renderer) {
-        eprintln!("wrote {} ({} frames)", path.display(), r.frames());
+    if let (Some(path), Some(r)) = (&a.render, renderer) {
+        let frames = r.frames();
+        drop(r); // closes the GIF
+        if frames == 0 {
+            // A GIF without frames is not a valid file (and PNG frames were never written).
+            if path.extension().is_some_and(|e| e == "gif") {
+                std::fs::remove_file(path)
+                    .with_context(|| format!("cannot remove {}", path.display()))?;
+            }
+            eprintln!("no windows: {} not written", path.display());
+        } else {
+            eprintln!("wrote {} ({frames} frames)", path.display());
+        }
     }
     for p in &a.out {
         eprintln!("wrote {}", p.display());

@@ -29,12 +29,15 @@ pub enum WindowRule {
 impl WindowRule {
     /// Checks sizes and strides: positive, the stride no longer than the window.
     pub fn check(&self) -> Result<()> {
-        let (size, stride) = match *self {
-            Self::Events { size, stride } => (i64::from(size), i64::from(stride)),
-            Self::Time { size_us, stride_us } => (size_us, stride_us),
+        let (size, stride, unit) = match *self {
+            Self::Events { size, stride } => (i64::from(size), i64::from(stride), " events"),
+            Self::Time { size_us, stride_us } => (size_us, stride_us, " µs"),
         };
         if size <= 0 || stride <= 0 || stride > size {
-            bail!("window {size} and stride {stride}: both must be positive, the stride at most the window");
+            bail!(
+                "window {size}{unit} and stride {stride}{unit}: both must be positive, the stride \
+                 at most the window"
+            );
         }
         Ok(())
     }
