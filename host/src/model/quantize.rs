@@ -458,6 +458,7 @@ mod tests {
         assert_eq!(f.sw[3], 1.0);
     }
 
+    #[cfg(feature = "onnx")]
     #[test]
     fn a_first_layer_channel_that_never_fired_leaves_its_consumers_resolution() {
         // The small model calibrated per channel, then one conv1 channel made dead (range 0):
