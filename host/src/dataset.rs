@@ -33,7 +33,7 @@
 //! | `subject.npy` | (W,) i64 | subject id |
 //! | `movement.npy` | (W,) u16 | index into the manifest's `movements` |
 //! | `recording.npy` | (W,) u32 | index into the manifest's `recordings` |
-//! | `window.npy` | (W,) u32 | the window's index in its recording (cameras of one window share it) |
+//! | `window.npy` | (W,) u32 | the window's index in its recording (with `--label mean`, cameras of one window share it; with `last`, each camera counts its own windows) |
 //! | `span_us.npy` | (W, 2) i64 | first and last event time of the window, µs |
 //! | `person.npy` | (W,) u8 | 1 = a person is in the scene; 0 = a person-free window (`--person-free`) |
 //! | `manifest.json` | | rule, N, cameras, split, counts, movements, recordings |
@@ -492,6 +492,11 @@ pub fn windows(
                     break; // a short tail is not a window
                 }
                 let span = (chunk[0].1.t, chunk[chunk.len() - 1].1.t);
+                // A window the ground truth does not cover (a recording longer than its
+                // labels) has no label to learn from: left out, not labelled with the last pose.
+                if !source.gt.is_empty() && !covers(source.gt.len(), gt_t0, span) {
+                    continue;
+                }
                 let label = mean_label(&source.gt, gt_t0, span);
                 for (c, cam) in cameras {
                     let evs: Vec<Event> = chunk
@@ -515,6 +520,9 @@ pub fn windows(
                         break;
                     }
                     let span = (chunk[0].t, chunk[chunk.len() - 1].t);
+                    if !source.gt.is_empty() && !covers(source.gt.len(), gt_t0, span) {
+                        continue;
+                    }
                     let label = (!source.gt.is_empty())
                         .then(|| source.gt[nearest_sample(source.gt.len(), gt_t0, span.1)]);
                     push(w as u32, span, *c, cam, chunk, label, &mut rng)?;
@@ -715,7 +723,8 @@ pub struct Dataset {
     pub recording: Vec<u32>,
     /// Window index per row.
     pub window: Vec<u32>,
-    /// First and last event time of each row's window, µs.
+    /// First and last event time of each row's window, µs (all `[0, 0]` in a dataset written
+    /// before `span_us.npy` existed).
     pub span_us: Vec<[i64; 2]>,
     /// 1 where a person is in the scene, 0 for a person-free window (all 1 in a dataset
     /// written before `person.npy` existed).
@@ -761,11 +770,16 @@ impl Dataset {
                 .map(|v| v as u32)
                 .collect(),
             window: read("window.npy")?.into_iter().map(|v| v as u32).collect(),
-            // µs timestamps are below 2^53: exact through f64.
-            span_us: read("span_us.npy")?
-                .chunks_exact(2)
-                .map(|t| [t[0] as i64, t[1] as i64])
-                .collect(),
+            // µs timestamps are below 2^53: exact through f64. A dataset written before
+            // `span_us.npy` existed has none: all [0, 0] (the filters refuse it).
+            span_us: if dir.join("span_us.npy").exists() {
+                read("span_us.npy")?
+                    .chunks_exact(2)
+                    .map(|t| [t[0] as i64, t[1] as i64])
+                    .collect()
+            } else {
+                vec![[0, 0]; manifest.samples as usize]
+            },
             person: if dir.join("person.npy").exists() {
                 read("person.npy")?.into_iter().map(|v| v as u8).collect()
             } else {

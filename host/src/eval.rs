@@ -63,7 +63,12 @@ impl Prediction {
 }
 
 /// Each recording's samples of one camera, in window order: the sequences a filter runs over.
-fn sequences(ds: &Dataset) -> Vec<Vec<usize>> {
+/// An error for a dataset without window times (written before `span_us.npy` existed): the
+/// filters' time steps come from them.
+fn sequences(ds: &Dataset) -> Result<Vec<Vec<usize>>> {
+    if !ds.span_us.is_empty() && ds.span_us.iter().all(|s| *s == [0, 0]) {
+        bail!("the dataset has no window times (span_us.npy): rebuild it to filter over time");
+    }
     let mut sequences: BTreeMap<(u32, u8), Vec<usize>> = BTreeMap::new();
     for i in 0..ds.len() {
         sequences
@@ -71,13 +76,13 @@ fn sequences(ds: &Dataset) -> Vec<Vec<usize>> {
             .or_default()
             .push(i);
     }
-    sequences
+    Ok(sequences
         .into_values()
         .map(|mut rows| {
             rows.sort_by_key(|&i| ds.window[i]);
             rows
         })
-        .collect()
+        .collect())
 }
 
 /// The predictions after the confidence-gated temporal filter ([`evpose_core::smooth`]), run
@@ -94,7 +99,7 @@ pub fn smooth(
     }
     let mut out: Vec<Joints2d> = predictions.iter().map(|p| p.joints).collect();
     let mut state = [AxisState::default(); 2 * JOINTS];
-    for rows in sequences(ds) {
+    for rows in sequences(ds)? {
         let mut f = Smoother::new(params, &mut state);
         for &i in &rows {
             let p = &predictions[i];
@@ -122,7 +127,7 @@ pub fn smooth_fixed_lag(
     let mut slots = vec![LagSlot::default(); FixedLag::slots_for(params.lag)];
     let mut held = vec![Held::default(); slots.len() * JOINTS];
     let lag_err = |e: evpose_core::smooth::LagError| anyhow::anyhow!("{e}");
-    for rows in sequences(ds) {
+    for rows in sequences(ds)? {
         let mut f =
             FixedLag::with_params(params, JOINTS, &mut slots, &mut held).map_err(lag_err)?;
         // Window numbers count this sequence's pushes from 0: positions in `rows`.
@@ -252,8 +257,12 @@ pub fn evaluate(
     let mut per_camera: BTreeMap<u8, Acc> = BTreeMap::new();
     let mut per_movement: BTreeMap<u16, Acc> = BTreeMap::new();
     let mut per_joint = [Acc::default(); JOINTS];
-    // Pairs of front-camera samples of one window: (recording, window) → rows.
+    // Pairs of front-camera samples of one window: (recording, window) → rows. Only the mean
+    // rule's windows are shared by the cameras; the last rule cuts each camera's events on
+    // their own (its window 1 of one camera is another time than of the other), so it has no
+    // 3-D figure.
     let mut pairs: BTreeMap<(u32, u32), [Option<usize>; 2]> = BTreeMap::new();
+    let shared_windows = ds.manifest.label == crate::dataset::LabelRule::Mean;
     for (i, pred) in predictions.iter().enumerate() {
         let errs = joint_errors_2d(pred, &ds.label2d[i], &ds.mask[i]);
         for (j, e) in errs.iter().enumerate() {
@@ -274,7 +283,9 @@ pub fn evaluate(
             continue;
         }
         if let Some(side) = front.iter().position(|(c, _)| *c == ds.camera[i]) {
-            pairs.entry((ds.recording[i], ds.window[i])).or_default()[side] = Some(i);
+            if shared_windows {
+                pairs.entry((ds.recording[i], ds.window[i])).or_default()[side] = Some(i);
+            }
         }
     }
     let mut windows = 0;

@@ -74,15 +74,20 @@ pub fn save(img: &RgbImage, path: &std::path::Path) -> Result<()> {
         .with_context(|| format!("cannot write {}", path.display()))
 }
 
-/// The event frame of Mean Label window `window` of camera `camera` of a simulated recording
-/// (`events`, its file in an `evpose sim` directory), with the projected ground truth drawn on
-/// it; also the window's labelled sample (for predictions).
+/// The event frame of Mean Label window `window` of camera `camera` (0 to 3) of a simulated
+/// recording (`events`, its file in an `evpose sim` directory), with the projected ground truth
+/// drawn on it; also the window's labelled sample of `points` points (for predictions: the
+/// model's count).
 pub fn ground_truth_frame(
     events_file: &std::path::Path,
     camera: u8,
     window: usize,
     scale: u32,
+    points: usize,
 ) -> Result<(RgbImage, crate::dataset::Sample)> {
+    if camera > 3 {
+        bail!("camera {camera}: DHP19's cameras are 0 to 3");
+    }
     use crate::dataset::{self, DatasetOptions, LabelRule, SplitFilter, MEAN_WINDOW_EVENTS};
     let dir = events_file.parent().unwrap_or(std::path::Path::new("."));
     let source = dataset::sources(dir)?
@@ -95,10 +100,10 @@ pub fn ground_truth_frame(
             )
         })?;
     let events = dataset::read_events(&source.events)?;
-    let cam = crate::simulate::dhp19_cameras()?[usize::from(camera & 3)];
+    let cam = crate::simulate::dhp19_cameras()?[usize::from(camera)];
     let opts = DatasetOptions {
         label: LabelRule::Mean,
-        points: evpose_core::pipeline::DEFAULT_POINTS,
+        points,
         cameras: vec![camera],
         split: SplitFilter::All,
         seed: 0,

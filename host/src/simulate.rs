@@ -200,7 +200,7 @@ fn write_recording(out: &Path, rec: &Recording) -> Result<RecordingEntry> {
         movement: rec.spec.movement.name().into(),
         seconds: rec.spec.seconds,
         events,
-        height_m: rec.subject.height,
+        height_m: rec.subject.height / 1000.0, // the body model's heights are in mm
     })
 }
 
@@ -218,14 +218,24 @@ pub fn parse_movements(list: &str) -> Result<Vec<Movement>> {
     if list.trim() == "all" {
         return Ok(Movement::ALL.to_vec());
     }
-    list.split(',')
+    let list: Vec<Movement> = list
+        .split(',')
         .map(|m| {
             m.trim().parse::<Movement>().map_err(|e| {
                 let names: Vec<&str> = Movement::ALL.iter().map(|m| m.name()).collect();
                 anyhow::anyhow!("{e}; movements: all, {}", names.join(", "))
             })
         })
-        .collect()
+        .collect::<Result<_>>()?;
+    // Each movement is one file per subject: listed twice, two jobs would write it at once.
+    if let Some((_, m)) = list
+        .iter()
+        .enumerate()
+        .find(|(i, m)| list[..*i].contains(m))
+    {
+        bail!("movement {} is listed twice", m.name());
+    }
+    Ok(list)
 }
 
 /// A generated recording's ground truth: `(T, 13, 3)` mm.
@@ -242,4 +252,14 @@ pub fn gt_from_array(shape: &[u64], v: &[f64]) -> Result<Vec<[[f32; 3]; evpose_s
     Ok(v.chunks_exact(3 * evpose_sim::JOINTS)
         .map(|s| std::array::from_fn(|j| std::array::from_fn(|a| s[3 * j + a] as f32)))
         .collect())
+}
+
+#[cfg(test)]
+mod movement_tests {
+    #[test]
+    fn a_movement_listed_twice_is_refused() {
+        assert_eq!(super::parse_movements("squats, hop-left").unwrap().len(), 2);
+        let err = super::parse_movements("squats,squats").unwrap_err();
+        assert_eq!(err.to_string(), "movement squats is listed twice");
+    }
 }

@@ -1024,6 +1024,29 @@ fn run_refuses_bad_or_ignored_arguments() {
     assert!(err.contains("--smooth off has none"), "{err}");
     let err = evpose_err(&["run", "--render-scale", "2"]);
     assert!(err.contains("--render"), "{err}");
+    // eval's filter options without --smooth, an engine for the baseline, render's cameras.
+    let err = evpose_err(&["eval", "--data", "x", "--model", "m.evq", "--lag", "2"]);
+    assert!(err.contains("--smooth"), "{err}");
+    let err = evpose_err(&[
+        "eval",
+        "--data",
+        "x",
+        "--baseline",
+        "t",
+        "--engine",
+        "tract",
+    ]);
+    assert!(err.contains("cannot be used with"), "{err}");
+    let err = evpose_err(&[
+        "render",
+        "--recording",
+        "r.aedat",
+        "--camera",
+        "7",
+        "--out",
+        "o.png",
+    ]);
+    assert!(err.contains("7 is not in 0..=3"), "{err}");
     // Windows in ms are reported with their unit.
     let err = evpose_err(&["run", "--window-ms", "1", "--stride", "2"]);
     assert!(err.contains("window 1000 µs and stride 2000 µs"), "{err}");

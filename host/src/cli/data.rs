@@ -121,7 +121,7 @@ pub struct EvalArgs {
     #[arg(long, required_unless_present = "baseline")]
     pub model: Option<PathBuf>,
     /// Engine (default: i8 for an `.evq`, f32 otherwise).
-    #[arg(long, value_enum)]
+    #[arg(long, value_enum, conflicts_with = "baseline")]
     pub engine: Option<EvalEngine>,
     /// Instead of a model: predict the mean pose of this training dataset (a sanity check).
     #[arg(long, conflicts_with = "model")]
@@ -137,16 +137,17 @@ pub struct EvalArgs {
     #[arg(long)]
     pub smooth: bool,
     /// Filter cut-off at rest, Hz (with --smooth).
-    #[arg(long, default_value_t = SmoothParams::DEFAULT.min_cutoff_hz)]
+    #[arg(long, default_value_t = SmoothParams::DEFAULT.min_cutoff_hz, requires = "smooth")]
     pub min_cutoff: f32,
     /// Filter cut-off increase per px/s of motion (with --smooth).
-    #[arg(long, default_value_t = SmoothParams::DEFAULT.beta)]
+    #[arg(long, default_value_t = SmoothParams::DEFAULT.beta, requires = "smooth")]
     pub beta: f32,
     /// Confidence at which a joint takes the filter's full step (with --smooth).
-    #[arg(long, default_value_t = SmoothParams::DEFAULT.full_confidence)]
+    #[arg(long, default_value_t = SmoothParams::DEFAULT.full_confidence, requires = "smooth")]
     pub full_confidence: f32,
     /// Windows each side of the fixed-lag filter (with --smooth).
-    #[arg(long, default_value_t = LagParams::DEFAULT.lag, value_parser = super::lag_in_range)]
+    #[arg(long, default_value_t = LagParams::DEFAULT.lag, value_parser = super::lag_in_range,
+          requires = "smooth")]
     pub lag: usize,
 }
 
@@ -159,6 +160,19 @@ impl EvalArgs {
             full_confidence: self.full_confidence,
             ..SmoothParams::DEFAULT
         }
+    }
+}
+
+/// Says so when the model records another point count than the dataset's samples have: the
+/// figures are then not those `evpose run` would give (it samples the model's count).
+fn warn_points(blob: &model::AlignedBlob, ds: &Dataset) {
+    let recorded = evpose_core::Model::parse(blob.bytes()).map_or(0, |m| m.preprocessing().points);
+    let have = ds.manifest.points;
+    if recorded != 0 && recorded as usize != have {
+        eprintln!(
+            "warning: the model takes {recorded} points, the dataset's samples have {have}: \
+             these figures are not those of `evpose run` (build the dataset with --points {recorded})"
+        );
     }
 }
 
@@ -211,6 +225,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
                             path.display()
                         );
                     }
+                    warn_points(&blob, &ds);
                     eval::predict_core(&ds, &blob, progress)?
                 }
             };
@@ -232,6 +247,9 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         predictions.iter().map(|p| p.confidence).collect();
     let weights = a.baseline.is_none().then_some(confidence.as_slice());
     let mut report = eval::evaluate(&ds, &joints, weights, front, predictor.clone(), rate)?;
+    if ds.manifest.label == dataset::LabelRule::Last {
+        eprintln!("note: --label last cuts each camera's windows on their own: no 3-D figure");
+    }
     if a.baseline.is_none() {
         let sum: f64 = predictions
             .iter()

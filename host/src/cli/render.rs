@@ -15,8 +15,8 @@ pub struct RenderArgs {
     /// A recording of an `evpose sim` directory (its manifest gives the ground truth).
     #[arg(long)]
     pub recording: PathBuf,
-    /// Camera channel.
-    #[arg(long, default_value_t = 2)]
+    /// Camera channel (DHP19's four: 0 to 3).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(0..=3))]
     pub camera: u8,
     /// Mean Label window index.
     #[arg(long, default_value_t = 0)]
@@ -34,10 +34,18 @@ pub struct RenderArgs {
 
 /// Runs `evpose render`.
 pub fn render(a: &RenderArgs) -> Result<()> {
-    let (mut img, sample) = render::ground_truth_frame(&a.recording, a.camera, a.window, a.scale)?;
-    if let Some(path) = &a.model {
-        let blob = model::load_blob(path)?;
-        let mut runner = CoreRunner::new(&blob).with_context(|| path.display().to_string())?;
+    let blob = a.model.as_deref().map(model::load_blob).transpose()?;
+    // The window sampled to the model's point count, as `evpose run` samples it.
+    let points = match &blob {
+        Some(b) => evpose_core::Model::parse(b.bytes())
+            .map_err(|e| anyhow::anyhow!("{e}"))?
+            .input_points(),
+        None => evpose_core::pipeline::DEFAULT_POINTS,
+    };
+    let (mut img, sample) =
+        render::ground_truth_frame(&a.recording, a.camera, a.window, a.scale, points)?;
+    if let (Some(path), Some(blob)) = (&a.model, &blob) {
+        let mut runner = CoreRunner::new(blob).with_context(|| path.display().to_string())?;
         let m = *runner.model();
         let mut joints = [evpose_core::Joint2d::default(); render_joints()];
         if m.dtype() == evpose_core::DType::I8 {
