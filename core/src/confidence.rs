@@ -228,8 +228,9 @@ pub fn axis<T: HeadValue>(logits: &[T], at: usize, scale: f32) -> f32 {
 }
 
 /// Confidence of each decoded joint in `joints` (from `x`, `J × width`, and `y`, `J × height`,
-/// row-major, as [`crate::decode`] reads them) into `out[..J]`; `scales` = `[x, y]` logit
-/// scales ([`crate::Model::head_scales`]).
+/// row-major, as [`crate::decode`] reads them) into `out`, exactly `J` long; `scales` = `[x, y]`
+/// logit scales ([`crate::Model::head_scales`]). Lengths that differ (or sizes whose product
+/// does not fit a `usize`) are a [`ShapeError`].
 pub fn joints<T: HeadValue>(
     x: &[T],
     y: &[T],
@@ -243,7 +244,9 @@ pub fn joints<T: HeadValue>(
     if width == 0 || height == 0 {
         return Err(ShapeError::Axis(0));
     }
-    for (got, want) in [(x.len(), n * width), (y.len(), n * height), (out.len(), n)] {
+    let xs = n.checked_mul(width).ok_or(ShapeError::Axis(width))?;
+    let ys = n.checked_mul(height).ok_or(ShapeError::Axis(height))?;
+    for (got, want) in [(x.len(), xs), (y.len(), ys), (out.len(), n)] {
         if got != want {
             return Err(ShapeError::Length {
                 expected: want,
@@ -267,6 +270,22 @@ pub fn joints<T: HeadValue>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sizes_whose_product_overflows_are_shape_errors() {
+        let joints = [Joint2d::default(); 2];
+        let mut out = [0f32; 2];
+        let r = self::joints(
+            &[0f32; 0],
+            &[0f32; 2],
+            1 << 63,
+            1,
+            [1.0; 2],
+            &joints,
+            &mut out,
+        );
+        assert_eq!(r, Err(ShapeError::Axis(1 << 63)));
+    }
 
     /// Distance in ulp between `got` and the f32 nearest `want` (both finite and positive).
     fn ulps(got: f32, want: f64) -> u32 {

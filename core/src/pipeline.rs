@@ -192,9 +192,11 @@ impl Engine for F32 {
 /// a host), for engine `E`.
 #[derive(Debug)]
 pub struct Workspace<'w, E: Engine> {
-    /// Sampling indices: at least the point count `N` (the window's point count when `N` is 0).
+    /// Sampling indices: at least the point count `N` (when `N` is 0, the most points a window
+    /// can have: its event capacity).
     pub indices: &'w mut [u32],
-    /// Network input rows: at least `N`.
+    /// Network input rows: at least [`crate::sample::sample_len`]`(capacity, N)`: `N`, or when
+    /// `N` is 0 the window's event capacity (a window has at most one point per event).
     pub rows: &'w mut [[f32; FEATURES]],
     /// Inference scratch: [`Plan::scratch_words`].
     pub scratch: &'w mut [E::Value],
@@ -244,8 +246,9 @@ pub struct Estimate<'a> {
 }
 
 impl Estimate<'_> {
-    /// The confidence of each joint into `out[..J]` ([`crate::confidence`]), with the model's
-    /// logit scales ([`crate::Model::head_scales`]).
+    /// The confidence of each joint into `out`, exactly `J` long ([`crate::confidence::joints`];
+    /// another length is a [`ShapeError`]), with the model's logit scales
+    /// ([`crate::Model::head_scales`]).
     pub fn confidence(&self, scales: [f32; 2], out: &mut [f32]) -> Result<(), ShapeError> {
         let j = self.joints.len().max(1);
         match self.heads {
@@ -394,7 +397,9 @@ impl<'m> Estimator<'m> {
         prof.end(Step::Decode);
         let heads = E::heads(ws.x, ws.y);
         let index = self.windows;
-        self.windows += 1;
+        // Wrapping: 2^32 windows are a year at 133 windows/s, and a counter is no reason to
+        // panic.
+        self.windows = self.windows.wrapping_add(1);
         Ok(Estimate {
             index,
             window,
@@ -430,12 +435,17 @@ impl<'m, S: RasterStorage> Session<'m, S> {
 
     /// Feeds events until one closes a window (as [`Rasterizer::extend`]); returns how many
     /// were used and, when a window closed, its estimate.
+    ///
+    /// A workspace whose sampling buffers cannot hold a window's sample
+    /// ([`Workspace::rows`]) is refused before any event is used, so that the caller can feed
+    /// the same events again with larger buffers.
     pub fn extend<'a, E: Engine>(
         &'a mut self,
         events: &[Event],
         ws: &'a mut Workspace<'_, E>,
         prof: &mut impl Profiler,
     ) -> Result<(usize, Option<Estimate<'a>>), PipelineError> {
+        self.check_sampling(ws)?;
         prof.begin(Step::Rasterize);
         let (used, closed) = {
             let (used, window) = self.raster.extend(events);
@@ -450,16 +460,29 @@ impl<'m, S: RasterStorage> Session<'m, S> {
     }
 
     /// Closes the open window (possibly empty: sampling then gives `N` zero points) and
-    /// estimates it.
+    /// estimates it. Sampling buffers too small for a window are refused first, as in
+    /// [`Session::extend`], with the window still open.
     pub fn flush<'a, E: Engine>(
         &'a mut self,
         ws: &'a mut Workspace<'_, E>,
         prof: &mut impl Profiler,
     ) -> Result<Estimate<'a>, PipelineError> {
+        self.check_sampling(ws)?;
         self.raster.flush();
         let stats = *self.raster.stats();
         let w = self.raster.last_window().unwrap_or_default();
         self.estimator.estimate(w, stats, ws, prof)
+    }
+
+    /// Whether `ws`'s sampling buffers hold the sample of any window this session can close
+    /// (`sample_len(capacity, N)` rows and indices).
+    fn check_sampling<E: Engine>(&self, ws: &Workspace<'_, E>) -> Result<(), PipelineError> {
+        let needed = crate::sample::sample_len(self.raster.capacity(), self.estimator.points);
+        let available = ws.rows.len().min(ws.indices.len());
+        if available < needed {
+            return Err(PipelineError::Sample(BufferTooSmall { needed, available }));
+        }
+        Ok(())
     }
 
     /// Feeds a whole batch, calling `on_window` with each window it closes, in order: the

@@ -71,11 +71,12 @@ pub fn at_most(v: f32, c: f32) -> f32 {
 
 /// Rounds half to even straight to an integer: after adding 1.5 × 2^23 the rounded value sits
 /// in the low mantissa bits, so subtracting the constant's bit pattern gives it as an i32.
-/// Exact for `|v| < 2^22`; integer SIMD only (no float→int conversion), so loops vectorize.
+/// Exact for `|v| < 2^22` (beyond, some integer, never a panic); integer SIMD only (no
+/// float→int conversion), so loops vectorize.
 #[inline(always)]
 pub fn round_to_i32(v: f32) -> i32 {
     const MAGIC: f32 = 12_582_912.0; // 1.5 × 2^23
-    (v + MAGIC).to_bits() as i32 - MAGIC.to_bits() as i32
+    ((v + MAGIC).to_bits() as i32).wrapping_sub(MAGIC.to_bits() as i32)
 }
 
 /// Requantizes one int32 accumulator (bias included) to int8 with an optional LeakyReLU.
@@ -164,9 +165,13 @@ impl InputCoding {
         shifts: [0, 0, 10, 0, 0],
     };
 
-    /// Scale of feature `i`: `2^shift`.
+    /// Scale of feature `i`: `2^shift` (1 for `i` past the features).
     pub fn factor(&self, i: usize) -> f32 {
-        (1u32 << self.shifts[i]) as f32
+        match self.shifts.get(i) {
+            Some(&s) if s < 32 => (1u32 << s) as f32,
+            Some(&s) => libm::ldexpf(1.0, i32::from(s)),
+            None => 1.0,
+        }
     }
 
     /// Codes one point.
@@ -179,6 +184,21 @@ impl InputCoding {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn codes_and_rounding_never_panic_outside_their_ranges() {
+        // Beyond ±2^22 the magic-number rounding gives some integer, not an overflow panic.
+        let _ = round_to_i32(-12_582_913.0);
+        let _ = round_to_i32(f32::MAX);
+        let c = InputCoding {
+            shifts: [0, 31, 32, 40, 200],
+        };
+        assert_eq!(c.factor(1), 2f32.powi(31));
+        assert_eq!(c.factor(2), 2f32.powi(32));
+        assert_eq!(c.factor(3), 2f32.powi(40));
+        assert_eq!(c.factor(4), f32::INFINITY);
+        assert_eq!(c.factor(5), 1.0);
+    }
 
     /// `at_least`/`at_most` are `f32::max`/`min` with a bound that is not NaN, for every kind
     /// of value: NaN gives the bound, infinities, equal values, and ±0 against a non-zero

@@ -138,6 +138,14 @@ pub enum ConfigError {
         /// Events the storage holds.
         available: usize,
     },
+    /// The storage holds more events than a window can count (32 bits).
+    StorageTooLarge {
+        /// Events the storage holds.
+        available: usize,
+    },
+    /// A window duration above `i32::MAX` µs: offsets from a window's first event are i32, so
+    /// such a window would close at 2^31 µs anyway (as a time jump).
+    Duration(u32),
     /// A histogram of the storage is shorter than the configuration needs.
     Histogram {
         /// Bins needed.
@@ -157,6 +165,16 @@ impl fmt::Display for ConfigError {
             Self::Capacity { needed, available } => write!(
                 f,
                 "window needs room for {needed} events but the storage holds {available}"
+            ),
+            Self::StorageTooLarge { available } => write!(
+                f,
+                "the storage holds {available} events; a window counts at most {} in 32 bits",
+                u32::MAX
+            ),
+            Self::Duration(d) => write!(
+                f,
+                "window duration {d} µs is above {} µs (about 36 minutes)",
+                i32::MAX
             ),
             Self::Histogram { needed, available } => write!(
                 f,
@@ -285,7 +303,7 @@ impl<const CAP: usize, const MAX_W: usize, const MAX_ROWS: usize> Default
 }
 
 /// Storage for the paper's DAVIS346 configuration: 7,500-event windows, up to 346 × 260, `K ≤ 4`.
-/// 121.5 KiB.
+/// 125,544 bytes (122.6 KiB).
 pub type Davis346Storage = InlineStorage<7_500, 346, 1_040>;
 
 /// Counters of everything the rasterizer did with its input; they only grow.
@@ -692,9 +710,15 @@ fn check_config(
     let needed = match c.window {
         WindowRule::Events(0) | WindowRule::Duration(0) => return Err(ConfigError::EmptyWindow),
         WindowRule::Events(n) => n as usize,
+        WindowRule::Duration(d) if d > i32::MAX as u32 => return Err(ConfigError::Duration(d)),
         WindowRule::Duration(_) => 1,
     };
-    if capacity < needed || capacity > u32::MAX as usize {
+    if capacity > u32::MAX as usize {
+        return Err(ConfigError::StorageTooLarge {
+            available: capacity,
+        });
+    }
+    if capacity < needed {
         return Err(ConfigError::Capacity {
             needed,
             available: capacity,

@@ -422,6 +422,13 @@ fn bad_configurations_are_typed_errors() {
         err(config(WindowRule::Duration(0))),
         Some(ConfigError::EmptyWindow)
     );
+    // Offsets from a window's first event are i32: a longer duration could never be reached.
+    let long = i32::MAX as u32 + 1;
+    assert_eq!(
+        err(config(WindowRule::Duration(long))),
+        Some(ConfigError::Duration(long))
+    );
+    assert_eq!(err(config(WindowRule::Duration(long - 1))), None);
 }
 
 #[test]

@@ -304,8 +304,8 @@ impl Kernels {
     pub const fn reference() -> Self {
         Self {
             isa: Isa::Reference,
-            i8: reference_i8,
-            i16: reference_i16,
+            i8: reference::matvec_i8,
+            i16: reference::matvec_i16,
             i8mm: reference::matmat_i8,
             requant: reference_requantize,
             pool: reference_pool,
@@ -533,26 +533,6 @@ fn reference_requantize(acc: &[i32], scales: &[f32], leaky: Option<f32>, out: &m
 /// [`reference::pool_i8`] as a function.
 fn reference_pool(max: &mut [i8], sum: &mut [i32], y: &[i8]) {
     reference::pool_i8(max, sum, y)
-}
-
-/// [`reference::matvec_i8`], with `K = 0` defined as `out[o] = bias[o]` (the reference panics).
-fn reference_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
-    if x.is_empty() {
-        let n = rows(0, w.len(), bias.len(), out.len());
-        out[..n].copy_from_slice(&bias[..n]);
-    } else {
-        reference::matvec_i8(w, x, bias, out);
-    }
-}
-
-/// [`reference::matvec_i16`], with `K = 0` defined as `out[o] = bias[o]` (the reference panics).
-fn reference_i16(w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]) {
-    if x.is_empty() {
-        let n = rows(0, w.len(), bias.len(), out.len());
-        out[..n].copy_from_slice(&bias[..n]);
-    } else {
-        reference::matvec_i16(w, x, bias, out);
-    }
 }
 
 /// Runs `iters` rounds of a loop of independent multiply-accumulate instructions of `isa`'s

@@ -4,9 +4,13 @@
 /// |product| ≤ 2^14, so the sum alone cannot overflow for K below 2^17; the additions wrap (as
 /// every SIMD and DSP kernel's do, in any order: the result is the same modulo 2^32), so that
 /// a blob's bias near `i32::MAX` gives defined integers, never a panic. The quantizer keeps its
-/// biases far enough from the limits that nothing wraps.
+/// biases far enough from the limits that nothing wraps. `K = 0` gives `out = bias` (the
+/// [`super::rows`] rule).
 pub fn matvec_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
     let k = x.len();
+    if k == 0 {
+        return bias_only(bias, out);
+    }
     for ((o, row), &b) in out.iter_mut().zip(w.chunks_exact(k)).zip(bias) {
         *o = row.iter().zip(x).fold(b, |acc, (&w, &x)| {
             acc.wrapping_add(i32::from(w) * i32::from(x))
@@ -14,10 +18,17 @@ pub fn matvec_i8(w: &[i8], x: &[i8], bias: &[i32], out: &mut [i32]) {
     }
 }
 
+/// `out[o] = bias[o]` for the rows of a `K = 0` product (`min(out, bias)`, [`super::rows`]).
+fn bias_only(bias: &[i32], out: &mut [i32]) {
+    for (o, &b) in out.iter_mut().zip(bias) {
+        *o = b;
+    }
+}
+
 /// [`matvec_i8`] for each of several points: the specification of
 /// [`super::MatmatI8`]. With `(P, O) =` [`super::matmat_dims`], point `p` (`x[p·K..][..K]`,
-/// `K = k`) goes to `out[p·out_stride..][..O]`; `K = 0` gives `bias` (where [`matvec_i8`] would
-/// panic). Nothing else in `out` is written.
+/// `K = k`) goes to `out[p·out_stride..][..O]`; `K = 0` gives `bias`. Nothing else in `out` is
+/// written.
 pub fn matmat_i8(w: &[i8], k: usize, x: &[i8], bias: &[i32], out: &mut [i32], out_stride: usize) {
     matmat_by_rows(matvec_i8, w, k, x, bias, out, out_stride);
 }
@@ -58,9 +69,13 @@ pub fn matmat_by_rows(
 
 /// The same for int16 operands: the first layer (the quantizer's |w| ≤ 1023 and |x| ≤ 2047
 /// keep every sum below 2^24) and 15-bit heads (bounded by the parser). The sums
-/// wrap, as in [`matvec_i8`]: a blob's first layer may hold any i16 weights.
+/// wrap, as in [`matvec_i8`]: a blob's first layer may hold any i16 weights. `K = 0` gives
+/// `out = bias`.
 pub fn matvec_i16(w: &[i16], x: &[i16], bias: &[i32], out: &mut [i32]) {
     let k = x.len();
+    if k == 0 {
+        return bias_only(bias, out);
+    }
     for ((o, row), &b) in out.iter_mut().zip(w.chunks_exact(k)).zip(bias) {
         *o = row.iter().zip(x).fold(b, |acc, (&w, &x)| {
             acc.wrapping_add(i32::from(w) * i32::from(x))

@@ -234,8 +234,9 @@ impl<'s> FixedLag<'s> {
         if self.pushed > self.next_out + self.lag as u64 {
             return Err(LagError::NotPopped);
         }
-        let gap = self.last_t_us.map(|last| t_us - last);
-        if gap.is_some_and(|d| d < 0 || d > self.reset_after_us) {
+        // A step that does not fit an i64 (a glitched timestamp) is a gap like any other.
+        let gap = self.last_t_us.map(|last| t_us.checked_sub(last));
+        if gap.is_some_and(|d| d.is_none_or(|d| d < 0 || d > self.reset_after_us)) {
             self.end_segment();
         }
         self.last_t_us = Some(t_us);
@@ -441,6 +442,9 @@ mod tests {
         // Two windows ending at the same time (sliding windows) stay in one segment.
         let same = run(1, &[(60_000, 10, 1.0), (60_000, 50, 1.0)]);
         assert!(same.iter().all(|g| (g.1 - 30.0).abs() < 1e-3), "{same:?}");
+        // A step that does not fit an i64 splits like a gap (no overflow panic).
+        let far = run(1, &[(1, 10, 1.0), (i64::MIN, 50, 1.0)]);
+        assert_eq!(far, vec![(0, 10.0), (1, 50.0)]);
     }
 
     #[test]

@@ -151,7 +151,8 @@ impl<'s> Smoother<'s> {
             });
         }
         let p = self.params;
-        let dt_us = self.last_t_us.map(|last| t_us - last);
+        // A step that does not fit an i64 (a glitched timestamp) restarts like any long gap.
+        let dt_us = self.last_t_us.and_then(|last| t_us.checked_sub(last));
         let fresh = match dt_us {
             None => true,
             Some(d) => d <= 0 || d > p.reset_after_us,
@@ -235,6 +236,12 @@ mod tests {
             "{sure:?} {unsure:?}"
         );
         assert_eq!(none[1], 100.0);
+        // Timestamps whose difference does not fit an i64 restart the filter, no panic.
+        let far = run(
+            p,
+            &[(1, 100, 1.0), (i64::MIN, 140, 1.0), (i64::MAX, 120, 1.0)],
+        );
+        assert_eq!(&far[..3], &[100.0, 140.0, 120.0]);
         // A NaN confidence holds the joint like 0, and the next window moves it again.
         let nan = run(
             p,

@@ -374,6 +374,52 @@ mod tests {
     }
 
     #[test]
+    fn a_workspace_too_small_for_a_window_is_refused_before_any_event_is_used() {
+        use evpose_core::pipeline::{PipelineError, Workspace};
+        use evpose_core::sample::BufferTooSmall;
+        let blob = crate::model::AlignedBlob::new(crate::assets::DEFAULT_MODEL);
+        let runner = CoreRunner::new(&blob).unwrap();
+        let plan = runner.plan().unwrap();
+        // Every point of 100-event windows (N = 0): a window needs up to 100 rows.
+        let raster = pipeline::rasterizer((346, 260), 4, 100).unwrap();
+        let mut session = Session::new(raster, Estimator::new(plan, 0, 0));
+        let mut buffers = crate::run::Buffers::<I8>::new(&plan, 0, 100);
+        let events: Vec<Event> = (0..100)
+            .map(|i| Event::new(i, 7, i64::from(i), true))
+            .collect();
+        {
+            let Workspace {
+                indices,
+                rows,
+                scratch,
+                x,
+                y,
+                joints,
+            } = buffers.workspace();
+            let mut small = Workspace::<I8> {
+                indices,
+                rows: &mut rows[..99],
+                scratch,
+                x,
+                y,
+                joints,
+            };
+            let err = session.extend(&events, &mut small, &mut ()).unwrap_err();
+            let want = BufferTooSmall {
+                needed: 100,
+                available: 99,
+            };
+            assert_eq!(err, PipelineError::Sample(want));
+        }
+        assert_eq!(session.rasterizer().buffered(), 0);
+        // The same events again, with room: the whole window.
+        let mut ws = buffers.workspace();
+        let (used, estimate) = session.extend(&events, &mut ws, &mut ()).unwrap();
+        assert_eq!(used, 100);
+        assert_eq!(estimate.unwrap().window.len(), 100);
+    }
+
+    #[test]
     fn a_window_split_by_a_time_jump_leaves_nothing_for_the_next() {
         let blob = crate::model::AlignedBlob::new(crate::assets::DEFAULT_MODEL);
         let runner = CoreRunner::new(&blob).unwrap();
