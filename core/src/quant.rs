@@ -165,13 +165,12 @@ impl InputCoding {
         shifts: [0, 0, 10, 0, 0],
     };
 
-    /// Scale of feature `i`: `2^shift` (1 for `i` past the features).
+    /// Scale of feature `i`: `2^shift` (infinite from a shift of 128; 1 for `i` past the
+    /// features), built from its f32 exponent bits: no shift that could overflow, and no
+    /// integer conversion on the per-point path.
     pub fn factor(&self, i: usize) -> f32 {
-        match self.shifts.get(i) {
-            Some(&s) if s < 32 => (1u32 << s) as f32,
-            Some(&s) => libm::ldexpf(1.0, i32::from(s)),
-            None => 1.0,
-        }
+        let s = self.shifts.get(i).map_or(0, |&s| u32::from(s));
+        f32::from_bits((127 + s).min(255) << 23)
     }
 
     /// Codes one point.
