@@ -135,7 +135,9 @@ impl<'s> Smoother<'s> {
     }
 
     /// Filters the joints of the window that ended at `t_us` with their `confidence` into
-    /// `out[j] = [x, y]` (pixels, sub-pixel).
+    /// `out[j] = [x, y]` (pixels, sub-pixel): the first `min(joints, confidence, out)` joints
+    /// (give the three the same length: a shorter `confidence` or `out` leaves the rest
+    /// unfiltered and unwritten).
     pub fn update(
         &mut self,
         t_us: i64,
