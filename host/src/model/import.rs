@@ -150,16 +150,9 @@ impl Importer {
             .iter()
             .map(|o| vals.get(o).ok_or_else(|| anyhow!("output not computed")))
             .collect::<Result<_>>()?;
-        // The heads are taken in output order (x, then y) unless their names say otherwise:
-        // an export whose outputs are named `…y`, `…x` (e.g. `simdr_y`, `simdr_x`) is swapped.
-        let axis = |o: &OutletId| {
-            model
-                .outlet_label(*o)
-                .and_then(|l| l.trim().chars().last())
-                .map(|c| c.to_ascii_lowercase())
-        };
+        // The heads are taken in output order (x, then y) unless their names say otherwise.
         if let [a, b] = outlets {
-            if (axis(a), axis(b)) == (Some('y'), Some('x')) {
+            if super::heads_swapped([model.outlet_label(*a), model.outlet_label(*b)]) {
                 outputs.swap(0, 1);
             }
         }
@@ -642,11 +635,12 @@ mod tests {
 
     #[test]
     fn heads_are_matched_by_their_output_names() {
-        // The small fixture with its outputs listed as (simdr_y, simdr_x): the same heads.
-        let want = import_onnx(
-            &Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/pointnet-small.onnx"),
-        )
-        .unwrap();
+        // The small fixture with its outputs listed as (simdr_y, simdr_x): the same heads, in
+        // the import and in tract.
+        use prost::Message;
+        let original =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/pointnet-small.onnx");
+        let want = import_onnx(&original).unwrap();
         let mut proto = small_proto();
         let graph = proto.graph.as_mut().unwrap();
         assert_eq!(graph.output[0].name, "simdr_x");
@@ -654,6 +648,22 @@ mod tests {
         let got = import_proto(&proto, "swapped").unwrap();
         assert_eq!((got.head_x.out_dim, got.head_y.out_dim), (346, 260));
         assert_eq!(got, want);
+        let swapped =
+            std::env::temp_dir().join(format!("evpose-swapped-{}.onnx", std::process::id()));
+        std::fs::write(&swapped, proto.encode_to_vec()).unwrap();
+        let points: Vec<[f32; 5]> = (0..64)
+            .map(|i| [i as f32 * 5.0, i as f32 * 3.0, 0.5, 1.0, 2.0])
+            .collect();
+        let run = |p: &Path| {
+            super::super::TractModel::load(p)
+                .unwrap()
+                .run(&points)
+                .unwrap()
+        };
+        let (a, b) = (run(&original), run(&swapped));
+        std::fs::remove_file(&swapped).unwrap();
+        assert_eq!(a.x.len(), 13 * 346);
+        assert_eq!((a.x, a.y), (b.x, b.y));
     }
 
     #[test]

@@ -10,6 +10,16 @@
 //! | `qonnx` | the quantized network as a standard ONNX graph | `onnx` |
 //! | `tract` | `TractModel`: tract running an ONNX file, the reference engine | `onnx` |
 
+/// Whether a model's two outputs, named `labels`, are listed y head first: both names end in
+/// `y` and `x` in that order (`simdr_y`, `simdr_x`). Otherwise the order is x, then y.
+pub fn heads_swapped(labels: [Option<&str>; 2]) -> bool {
+    let axis = |l: Option<&str>| {
+        l.and_then(|l| l.trim().chars().last())
+            .map(|c| c.to_ascii_lowercase())
+    };
+    (axis(labels[0]), axis(labels[1])) == (Some('y'), Some('x'))
+}
+
 #[cfg(feature = "onnx")]
 pub mod import;
 pub mod net;

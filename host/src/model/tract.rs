@@ -13,15 +13,24 @@ use super::Logits;
 /// optimized plan.
 #[derive(Clone)]
 pub struct TractModel {
-    plan: Option<std::sync::Arc<TypedSimplePlan>>,
-    path: std::path::PathBuf,
+    /// The optimized plan and the point count it was made for.
+    plan: Option<(usize, std::sync::Arc<TypedSimplePlan>)>,
+    /// The loaded graph, for a dynamic export's plan at another point count.
+    source: std::sync::Arc<InferenceModel>,
     fixed: Option<usize>,
+    /// Whether the outputs are listed y first (by their names, [`super::heads_swapped`]).
+    swapped: bool,
 }
 
 impl TractModel {
-    /// Loads a model; a fixed-N export is optimized once, a dynamic one per point count.
+    /// Loads a model; a fixed-N export is optimized once, a dynamic one when the point count
+    /// changes (the last plan is kept: a benchmark or a run at one N optimizes once).
     pub fn load(path: &Path) -> Result<Self> {
         let model = load_inference(path)?;
+        let swapped = match model.output_outlets() {
+            Ok([a, b]) => super::heads_swapped([model.outlet_label(*a), model.outlet_label(*b)]),
+            _ => false,
+        };
         let fixed = model
             .input_fact(0)
             .map_err(|e| anyhow!("{e}"))?
@@ -31,13 +40,14 @@ impl TractModel {
             .and_then(|d| d.concretize())
             .and_then(|d| d.to_usize().ok());
         let plan = match fixed {
-            Some(n) => Some(optimize(model, n)?),
+            Some(n) => Some((n, optimize(model.clone(), n)?)),
             None => None,
         };
         Ok(Self {
             plan,
-            path: path.to_path_buf(),
+            source: std::sync::Arc::new(model),
             fixed,
+            swapped,
         })
     }
 
@@ -68,10 +78,10 @@ impl TractModel {
         if let Some(f) = self.fixed {
             ensure!(n == f, "this model takes exactly {f} points, got {n}");
         }
-        if self.plan.is_none() {
-            self.plan = Some(optimize(load_inference(&self.path)?, n)?);
+        if self.plan.as_ref().is_none_or(|(at, _)| *at != n) {
+            self.plan = Some((n, optimize((*self.source).clone(), n)?));
         }
-        let plan = self.plan.as_ref().context("no plan")?;
+        let (_, plan) = self.plan.as_ref().context("no plan")?;
         // (N, 5) → (1, 5, N)
         let mut input = vec![0f32; 5 * n];
         for (i, p) in points.iter().enumerate() {
@@ -84,24 +94,25 @@ impl TractModel {
             .run(tvec!(Tensor::from(t).into()))
             .map_err(|e| anyhow!("tract: {e:?}"))?;
         ensure!(out.len() == 2, "expected two outputs");
-        let joints = *out[0].shape().get(1).context("x output rank")?;
-        let logits = if out[0].datum_type() == i32::datum_type() {
+        let (x, y) = if self.swapped {
+            (&out[1], &out[0])
+        } else {
+            (&out[0], &out[1])
+        };
+        let joints = *x.shape().get(1).context("x output rank")?;
+        Ok(if x.datum_type() == i32::datum_type() {
             TractOutput::I32(Logits {
                 joints,
-                x: values::<i32>(&out[0])?,
-                y: values::<i32>(&out[1])?,
+                x: values::<i32>(x)?,
+                y: values::<i32>(y)?,
             })
         } else {
             TractOutput::F32(Logits {
                 joints,
-                x: values::<f32>(&out[0])?,
-                y: values::<f32>(&out[1])?,
+                x: values::<f32>(x)?,
+                y: values::<f32>(y)?,
             })
-        };
-        if self.fixed.is_none() {
-            self.plan = None; // the next call may have another N
-        }
-        Ok(logits)
+        })
     }
 }
 
