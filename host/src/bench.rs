@@ -127,7 +127,17 @@ fn time_ms(iters: u32, mut f: impl FnMut() -> Result<()>) -> Result<(f64, f64)> 
         t.push(s.elapsed().as_secs_f64() * 1e3);
     }
     t.sort_by(f64::total_cmp);
-    Ok((t[t.len() / 2], t[0]))
+    Ok((median(&t), t[0]))
+}
+
+/// The median of sorted times: the middle one, or the mean of the two middle ones for an
+/// even count (0 for none).
+fn median(sorted: &[f64]) -> f64 {
+    match sorted.len() {
+        0 => 0.0,
+        n if n % 2 == 1 => sorted[n / 2],
+        n => (sorted[n / 2 - 1] + sorted[n / 2]) / 2.0,
+    }
 }
 
 /// GMAC/s of [`evpose_core::kernels::peak_loop`] for `isa`, best of 5 runs of 120 M
@@ -303,19 +313,27 @@ pub fn pipeline(
         times.push(t);
     }
     times.sort_by(f64::total_cmp);
-    let median = times[times.len() / 2];
+    let median = median(&times);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads.max(1))
         .build()?;
     let tasks = passes.max(1) as usize * threads.max(1);
-    let start = Instant::now();
-    pool.install(|| {
+    // Each pass resolved outside its timer, as on one thread (a plan does not move between
+    // threads): the threads' busy time is the runs alone, and the slowest thread's total is
+    // the wall time of the runs.
+    let per_thread = pool.install(|| {
         (0..tasks)
             .into_par_iter()
-            .map(|_| once().map(|_| ()))
-            .collect::<Result<Vec<()>>>()
+            .map(|_| once().map(|(t, _, _)| (rayon::current_thread_index().unwrap_or(0), t)))
+            .collect::<Result<Vec<(usize, f64)>>>()
     })?;
-    let wall = start.elapsed().as_secs_f64();
+    let mut busy = vec![0f64; threads.max(1)];
+    for (thread, t) in per_thread {
+        if let Some(b) = busy.get_mut(thread) {
+            *b += t;
+        }
+    }
+    let wall = busy.iter().copied().fold(0.0, f64::max);
     Ok(PipelineBench {
         cpu: cpu_model(),
         run,
@@ -331,4 +349,14 @@ pub fn pipeline(
         parallel_events_per_second: (events * tasks as u64) as f64 / wall,
         parallel_windows_per_second: (windows * tasks) as f64 / wall,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_median_of_an_even_count_is_the_mean_of_the_middle_two() {
+        assert_eq!(super::median(&[1.0, 2.0, 3.0]), 2.0);
+        assert_eq!(super::median(&[1.0, 2.0, 4.0, 10.0]), 3.0);
+        assert_eq!(super::median(&[]), 0.0);
+    }
 }

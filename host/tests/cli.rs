@@ -576,6 +576,10 @@ fn run_on_the_bundled_clip_follows_its_ground_truth() {
 
 #[test]
 fn budget_estimates_latency_per_target() {
+    // An f32 model gets no estimate: the Cortex-M counts are the int8 engine's.
+    let paper = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/paper.onnx");
+    let v = json(&["budget", "--model", s(&paper), "--json"]);
+    assert_eq!(v["latency"], serde_json::json!([]));
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/mcu.evq");
     let v = json(&[
         "budget",
@@ -1047,6 +1051,9 @@ fn run_refuses_bad_or_ignored_arguments() {
         "o.png",
     ]);
     assert!(err.contains("7 is not in 0..=3"), "{err}");
+    // Benchmarks of zero passes would divide by nothing.
+    let err = evpose_err(&["bench", "raster", "--iterations", "0"]);
+    assert!(err.contains("0 is not in 1.."), "{err}");
     // Windows in ms are reported with their unit.
     let err = evpose_err(&["run", "--window-ms", "1", "--stride", "2"]);
     assert!(err.contains("window 1000 µs and stride 2000 µs"), "{err}");

@@ -52,11 +52,23 @@ pub fn budget(a: &BudgetArgs) -> Result<()> {
     };
     let image = elf.as_deref().map(image_budget).transpose()?;
     let measured = latency::measured()?;
-    let latency = a
-        .target
-        .iter()
-        .map(|&t| latency::estimate(&mb, a.window_events, &measured, t, a.weights))
-        .collect();
+    // The measured counts are the int8 engine's (its Cortex-M kernels): an f32 model's
+    // latency on an MCU is not estimated from them.
+    let latency = if m.dtype() == evpose_core::DType::I8 {
+        a.target
+            .iter()
+            .map(|&t| latency::estimate(&mb, a.window_events, &measured, t, a.weights))
+            .collect()
+    } else {
+        if !a.json {
+            eprintln!(
+                "no latency estimate: {} is an f32 model, and the Cortex-M counts are the int8 \
+                 engine's (quantize it with `evpose quantize`)",
+                a.model.display()
+            );
+        }
+        Vec::new()
+    };
     let b = Budget {
         model: mb,
         image,
@@ -149,6 +161,9 @@ fn print_latency(
     (events, points): (u64, u64),
     (weights, widened_bytes): (Weights, usize),
 ) {
+    if list.is_empty() {
+        return;
+    }
     let (point, point_m4, over) = match weights {
         Weights::Widened => (
             k.instructions_per_point_mac,

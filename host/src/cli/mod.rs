@@ -191,8 +191,8 @@ pub struct BenchRasterArgs {
     /// Events per window.
     #[arg(long, default_value_t = evpose_core::raster::DEFAULT_WINDOW_EVENTS)]
     pub window_events: u32,
-    /// Passes over the events.
-    #[arg(long, default_value_t = 200)]
+    /// Passes over the events (at least 1).
+    #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u32).range(1..))]
     pub iterations: u32,
     /// Print JSON instead of text.
     #[arg(long)]

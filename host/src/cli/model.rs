@@ -145,8 +145,8 @@ pub struct BenchInferArgs {
     /// Input points (default: a bundled street window, sampled to the model's point count).
     #[arg(long)]
     pub points: Option<PathBuf>,
-    /// Timed runs per engine (after one warm-up run).
-    #[arg(long, default_value_t = 10)]
+    /// Timed runs per engine (after one warm-up run; at least 1).
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..))]
     pub iterations: u32,
     /// Print JSON.
     #[arg(long)]
