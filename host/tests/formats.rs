@@ -322,14 +322,15 @@ fn data_starting_with_the_comment_byte_ends_the_header() {
 #[test]
 fn aedat2_dvs128_layout() {
     let mut f = aedat2_header(Some("ch.unizh.ini.jaer.chip.retina.Tmpdiff128"), true);
-    // By hand: y = 5, x_raw = 0 (x = 127), polarity bit 0 = 0 is ON.
+    // By hand: row 5 from the bottom (y = 122 from the top), x_raw = 0 (x = 127), polarity
+    // bit 0 = 0 is ON.
     aedat2_record(&mut f, 5 << 8, 10);
     aedat2_record(&mut f, dvs128_addr(0, 127, false), 11);
     aedat2_record(&mut f, 0x8000, 12); // sync event: skipped
     let d = decode(Dec::Aedat2, &f).unwrap();
     assert_eq!(
         d.events,
-        events_of(&[ev(0, 127, 5, 10, true), ev(0, 0, 127, 11, false)])
+        events_of(&[ev(0, 127, 122, 10, true), ev(0, 0, 127, 11, false)])
     );
     assert_eq!(d.notes.skipped_records, 1);
 }

@@ -45,8 +45,12 @@
 //!   same way. DHP19's own frame generation also mirrors x (`346 - x`) when it builds its
 //!   images; this reader does not: it delivers the sensor's orientation.
 //! * DVS128 (jAER `Tmpdiff128`, libcaer `dvs128`): bits 15–31 set is a sync / special event;
-//!   otherwise x = 127 − bits 1–7, y = bits 8–14, and the event is ON when bit 0 is **0** (both
-//!   jAER and libcaer invert the polarity bit). libcaer, whose origin is top-left, keeps y.
+//!   otherwise x = 127 − bits 1–7, and the event is ON when bit 0 is **0** (both jAER and
+//!   libcaer invert the polarity bit). The row, bits 8–14, counts from the bottom as in every
+//!   AEDAT 2.0 layout (iniVation's AEDAT 2.0 page: "(0, 0) in the lower left corner"; jAER keeps
+//!   it so; libcaer's `dvs128.c` inverts it "to convert to CG format"): `y = 127 − row`, the
+//!   top-left origin of [`Event`], as for DAVIS. (Through stop 41 this reader kept the row, and
+//!   DVS128 recordings came out upside down against every other layout.)
 //!
 //! # Damage and recovery
 //!
@@ -407,7 +411,7 @@ impl Decoder<'_> {
                 return Ok(None);
             }
             let x = 127 - ((addr >> 1) & 0x7F) as u16;
-            let y = ((addr >> 8) & 0x7F) as u16;
+            let y = 127 - ((addr >> 8) & 0x7F) as u16;
             Ok(Some((0, x, y, addr & 1 == 0)))
         })
     }

@@ -65,9 +65,10 @@ pub fn davis_addr(x: u16, y_top: u16, on: bool, height: u16) -> u32 {
     (y_raw << 22) | (u32::from(x) << 12) | (u32::from(on) << 11)
 }
 
-/// DVS128 address: x_raw = 127 - x in bits 1–7, y in bits 8–14, bit 0 = 0 for ON.
-pub fn dvs128_addr(x: u16, y: u16, on: bool) -> u32 {
-    (u32::from(y) << 8) | (u32::from(127 - x) << 1) | u32::from(!on)
+/// DVS128 address (top-left `x`, `y_top`): x_raw = 127 - x in bits 1–7, the row from the
+/// bottom (127 - y_top, AEDAT 2.0's lower-left origin) in bits 8–14, bit 0 = 0 for ON.
+pub fn dvs128_addr(x: u16, y_top: u16, on: bool) -> u32 {
+    (u32::from(127 - y_top) << 8) | (u32::from(127 - x) << 1) | u32::from(!on)
 }
 
 pub fn aedat2_record(out: &mut Vec<u8>, addr: u32, ts: u32) {
