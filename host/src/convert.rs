@@ -20,10 +20,29 @@ pub struct Converted {
     pub warnings: Vec<String>,
 }
 
+/// Refuses to write over the recording being read (the output is created before the input has
+/// been read to its end).
+fn check_distinct(file: &Path, out: &Path) -> Result<()> {
+    if let (Ok(a), Ok(b)) = (file.canonicalize(), out.canonicalize()) {
+        if a == b {
+            bail!(
+                "{}: the output would overwrite the recording it reads",
+                out.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Largest |t| (µs) that f64 holds exactly: 2^53.
+const EXACT_IN_F64: i64 = 1 << 53;
+
 /// Writes `camera`'s events of the recording `file` (read with `opts`) to `out` as an (N, 4)
 /// float64 `.npy` array `[x, y, t_us, p]`. Two streaming passes (count, then write): memory
-/// does not grow with the file.
+/// does not grow with the file. A timestamp beyond 2^53 µs (which f64 would round; e.g.
+/// nanoseconds read as µs) is an error.
 pub fn to_npy(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Result<Converted> {
+    check_distinct(file, out)?;
     let summary = summarize_with(file, opts)?;
     let mut warnings = Vec::new();
     let n = summary
@@ -60,6 +79,14 @@ pub fn to_npy(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Result
     {
         for (e, &cam) in batch.events.iter().zip(&batch.cameras) {
             if cam == camera {
+                if e.t.unsigned_abs() > EXACT_IN_F64 as u64 {
+                    bail!(
+                        "{}: timestamp {} µs does not fit a float64 exactly (beyond 2^53): \
+                         nanoseconds read as µs? (--time-unit)",
+                        path.display(),
+                        e.t
+                    );
+                }
                 w.extend([
                     f64::from(e.x),
                     f64::from(e.y),
@@ -89,6 +116,7 @@ pub fn to_aedat4(
     camera: Option<u8>,
     out: &Path,
 ) -> Result<Converted> {
+    check_distinct(file, out)?;
     let summary = summarize_with(file, opts)?;
     let mut warnings = Vec::new();
     let mut cameras: Vec<CameraInfo> = summary

@@ -29,8 +29,12 @@ pub struct CameraSummary {
     pub first_t: Option<i64>,
     /// Last timestamp in file order, µs.
     pub last_t: Option<i64>,
-    /// `last_t - first_t`, µs.
+    /// Span from the earliest to the latest timestamp, µs (never negative, whatever the file
+    /// order).
     pub duration_us: Option<i64>,
+    /// Earliest and latest timestamps, µs (for the span).
+    #[serde(skip)]
+    t_range: Option<(i64, i64)>,
 }
 
 /// What `evpose info` reports.
@@ -93,6 +97,10 @@ pub fn summarize_reader(reader: &mut dyn EventReader, name: &str) -> Result<Reco
             }
             s.first_t.get_or_insert(e.t);
             s.last_t = Some(e.t);
+            s.t_range = Some(
+                s.t_range
+                    .map_or((e.t, e.t), |(a, b)| (a.min(e.t), b.max(e.t))),
+            );
         }
     }
     // Cameras a reader declared while reading (AEDAT 3.1 sources) have their info now.
@@ -103,7 +111,7 @@ pub fn summarize_reader(reader: &mut dyn EventReader, name: &str) -> Result<Reco
             c.height = c.height.or(i.height);
             c.name = c.name.take().or_else(|| i.name.clone());
         }
-        c.duration_us = c.first_t.zip(c.last_t).map(|(a, b)| b - a);
+        c.duration_us = c.t_range.map(|(a, b)| b - a);
     }
     cameras.sort_by_key(|c| c.camera);
     Ok(RecordingSummary {

@@ -1157,3 +1157,53 @@ fn run_leaves_a_camera_without_events_out_of_3d_and_the_no_body_test() {
         assert_eq!(w["no_body"], false, "{}", w["window"]);
     }
 }
+
+#[test]
+fn convert_raster_and_info_on_odd_input() {
+    // convert never writes over the recording it reads.
+    let src = tmp("self.npy");
+    std::fs::copy(fixture("street-00.events.npy"), &src).unwrap();
+    let before = std::fs::read(&src).unwrap();
+    let err = evpose_err(&["convert", s(&src), "--out", s(&src)]);
+    assert!(
+        err.contains("would overwrite the recording it reads"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(&src).unwrap(), before);
+    // Nanoseconds read as µs do not fit f64 exactly: an error, not rounded times.
+    let ns = tmp("ns.txt");
+    std::fs::write(
+        &ns,
+        "1700000000123456789 1 2 1\n1700000000123457789 3 4 0\n",
+    )
+    .unwrap();
+    let err = evpose_err(&["convert", s(&ns), "--out", s(&tmp("ns.npy"))]);
+    assert!(err.contains("beyond 2^53"), "{err}");
+    // info's span is never negative, whatever the file order.
+    let back = tmp("back.txt");
+    std::fs::write(&back, "100 1 1 1\n500 2 2 1\n50 3 3 1\n").unwrap();
+    let v = json(&["info", s(&back), "--json"]);
+    assert_eq!(v["cameras"][0]["duration_us"], 450);
+    // A time jump splits raster's single window: one numbered file per window, none lost.
+    let jump = tmp("jump.txt");
+    std::fs::write(
+        &jump,
+        "0 1 1 1\n10 2 2 1\n3000000000 3 3 1\n3000000010 4 4 1\n3000000020 5 5 1\n",
+    )
+    .unwrap();
+    let out = tmp("jump.npy");
+    evpose(&["raster", "--events", s(&jump), "--out", s(&out)]);
+    let (a, _) = evpose_host::array::read_f64(&tmp("jump-000.npy")).unwrap();
+    let (b, _) = evpose_host::array::read_f64(&tmp("jump-001.npy")).unwrap();
+    assert_eq!((a[0], b[0]), (2, 3));
+    let err = evpose_err(&[
+        "raster",
+        "--events",
+        s(&jump),
+        "--out",
+        s(&out),
+        "--window-events",
+        "0",
+    ]);
+    assert!(err.contains("0 is not in 1.."), "{err}");
+}

@@ -153,8 +153,9 @@ pub struct RasterArgs {
     /// Time slices K.
     #[arg(long, default_value_t = 4)]
     pub slices: u8,
-    /// Events per window (default: the whole input as one window).
-    #[arg(long)]
+    /// Events per window (default: the whole input as one window, unless an event lies more
+    /// than 2^31 µs from its first: then the windows are numbered as with this option).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub window_events: Option<u32>,
     /// Camera to rasterize from multi-camera recordings.
     #[arg(long, default_value_t = 0)]
@@ -324,7 +325,9 @@ fn raster(a: &RasterArgs) -> Result<()> {
         camera: a.camera,
         all_camera_windows: a.all_camera_windows,
     };
-    let several = a.window_events.is_some();
+    // Numbered files even without --window-events: a time jump can split the input into
+    // windows (one file per window; a single one is renamed back below).
+    let several = true;
     let mut paths = Vec::new();
     let report = pipeline::rasterize(&a.events, &opts, |i, w| {
         let rows = pipeline::window_rows(w);
@@ -334,7 +337,7 @@ fn raster(a: &RasterArgs) -> Result<()> {
         Ok(())
     })?;
     let size = report.size;
-    // One window from a windowed run keeps the plain name, as if no window size were given.
+    // One window keeps the plain name.
     if several && paths.len() == 1 {
         std::fs::rename(&paths[0], &a.out)?;
         paths[0] = a.out.clone();

@@ -181,15 +181,26 @@ pub fn infer(a: &InferArgs) -> Result<()> {
         Engine::F32 => {
             let blob = model::load_blob(&a.model)?;
             let mut runner = CoreRunner::new(&blob).context(a.model.display().to_string())?;
+            warn_point_count(runner.model(), points.len());
             let l = repeat(a.repeat, || runner.run_f32(&points))?;
             write_logits(&l, &a.out_x, &a.out_y)
         }
         Engine::I8 => {
             let blob = model::load_blob(&a.model)?;
             let mut runner = CoreRunner::new(&blob).context(a.model.display().to_string())?;
+            warn_point_count(runner.model(), points.len());
             let l = repeat(a.repeat, || runner.run_i8(&points))?;
             write_logits(&l, &a.out_x, &a.out_y)
         }
+    }
+}
+
+/// The core engines run any point count (PointNet pools over them), but a model that records
+/// its `N` was trained and calibrated at it: say so when the input differs.
+fn warn_point_count(m: &evpose_core::Model<'_>, points: usize) {
+    let n = m.preprocessing().points as usize;
+    if n != 0 && n != points {
+        eprintln!("warning: the model records {n} points per input; this input has {points}");
     }
 }
 

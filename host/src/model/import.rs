@@ -667,6 +667,16 @@ mod tests {
     }
 
     #[test]
+    fn tract_refuses_an_empty_point_cloud() {
+        // (tract itself divides by the point count: a panic, where the core engines say why.)
+        let path =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/pointnet-small.onnx");
+        let mut t = super::super::TractModel::load(&path).unwrap();
+        let err = t.run(&[]).unwrap_err().to_string();
+        assert_eq!(err, "no input points");
+    }
+
+    #[test]
     fn concatenations_off_the_channel_axis_are_refused() {
         let layer = Dense {
             in_dim: 5,

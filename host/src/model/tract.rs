@@ -75,6 +75,7 @@ impl TractModel {
     /// Runs the model; outputs keep their element type.
     pub fn run_any(&mut self, points: &[[f32; 5]]) -> Result<TractOutput> {
         let n = points.len();
+        ensure!(n > 0, "no input points");
         if let Some(f) = self.fixed {
             ensure!(n == f, "this model takes exactly {f} points, got {n}");
         }
