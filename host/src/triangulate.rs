@@ -36,6 +36,8 @@ pub struct View {
     pub joints: Vec<(f64, f64)>,
     /// First and last event timestamp, µs.
     pub t_us: Option<(i64, i64)>,
+    /// The camera the joints are of, when the source says (an `evpose run` output does).
+    pub camera: Option<u8>,
 }
 
 /// Pairs each window of `a` with a window of `b`: the one whose time span overlaps it most
@@ -140,6 +142,7 @@ pub fn read_poses(path: &Path) -> Result<Vec<View>> {
                     .map(|&[u, v]| (f64::from(u), f64::from(v)))
                     .collect(),
                 t_us: Some((w.t_us[0], w.t_us[1])),
+                camera: Some(cam.camera),
             })
         })
         .collect()
@@ -171,6 +174,7 @@ mod tests {
     fn windows_pair_by_time_overlap() {
         let v = |t: Option<(i64, i64)>| View {
             joints: vec![],
+            camera: None,
             t_us: t,
         };
         // Camera B's windows are cut at other times: A's 100–199 overlaps B's 130–260 most.

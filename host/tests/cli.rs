@@ -735,7 +735,7 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
             })
             .collect()
     };
-    let write = |name: &str, cam: &evpose_core::geometry::Camera, first: i64| {
+    let write = |name: &str, cam: &evpose_core::geometry::Camera, id: u8, first: i64| {
         let path = tmp(name);
         let lines: Vec<String> = (first..2)
             .enumerate()
@@ -743,7 +743,7 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
                 serde_json::json!({
                     "window": i, "t_us": [w * 100 + 10, w * 100 + 90], "events": 30000,
                     "no_body": false,
-                    "cameras": [{"camera": 2, "events": 7000, "points": 256,
+                    "cameras": [{"camera": id, "events": 7000, "points": 256,
                         "joints": pixels(cam, w.max(0) as usize), "confidence": []}],
                 })
                 .to_string()
@@ -752,8 +752,36 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
         std::fs::write(&path, lines.join("\n") + "\n").unwrap();
         path
     };
-    let (pa, pb) = (write("cam2.jsonl", &a, 0), write("cam3.jsonl", &b, -1));
+    let (pa, pb) = (
+        write("cam2.jsonl", &a, 2, 0),
+        write("cam3.jsonl", &b, 3, -1),
+    );
     let out = evpose(&["triangulate", s(&pa), s(&pb), "--json"]);
+    // The files say which camera each is: given the other way round they triangulate the
+    // same (the calibration follows the files), and a --cameras that contradicts them is
+    // refused.
+    let swapped = evpose(&["triangulate", s(&pb), s(&pa), "--json"]);
+    let first: serde_json::Value = serde_json::from_str(swapped.lines().next().unwrap()).unwrap();
+    let want = triangulate(
+        &b,
+        {
+            let p = pixels(&b, 0);
+            (f64::from(p[5].0), f64::from(p[5].1))
+        },
+        &a,
+        {
+            let p = pixels(&a, 0);
+            (f64::from(p[5].0), f64::from(p[5].1))
+        },
+    )
+    .unwrap();
+    let got: [f64; 3] = serde_json::from_value(first["joints"][5].clone()).unwrap();
+    assert!(
+        (0..3).all(|i| (got[i] - want[i]).abs() < 1e-6),
+        "{got:?} vs {want:?}"
+    );
+    let err = evpose_err(&["triangulate", s(&pb), s(&pa), "--cameras", "2,3"]);
+    assert!(err.contains("the pose files are of cameras 3,2"), "{err}");
     let lines: Vec<serde_json::Value> = out
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
@@ -828,7 +856,9 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
     let first = good.lines().next().unwrap();
     std::fs::write(&bad, format!("{first}\n{{\"window\": 1}}\n")).unwrap();
     assert!(evpose_err(&["triangulate", s(&bad), s(&pb)]).contains("line 2"));
-    assert!(evpose_err(&["triangulate", s(&pa), s(&pb), "--cameras", "2,7"]).contains("0–3"));
+    let joints = ["--joints-a", "100,100", "--joints-b", "120,90"];
+    let err = evpose_err(&[&["triangulate", "--cameras", "2,7"][..], &joints[..]].concat());
+    assert!(err.contains("0–3"), "{err}");
 }
 
 #[test]

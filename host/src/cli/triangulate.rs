@@ -31,10 +31,11 @@ pub struct TriangulateArgs {
     /// Explicit 2-D joints seen by the second camera, as `--joints-a`.
     #[arg(long, requires = "joints_a", allow_hyphen_values = true)]
     pub joints_b: Option<String>,
-    /// DHP19 camera channels (aedat channel ids, 0–3) of the two views, `A,B`; the default,
-    /// the front pair, is DHP19's evaluation pair.
-    #[arg(long, value_delimiter = ',', default_values_t = dhp19::FRONT_CHANNELS)]
-    pub cameras: Vec<u8>,
+    /// DHP19 camera channels (aedat channel ids, 0–3) of the two views, `A,B` (default: the
+    /// cameras the pose files record, else DHP19's front pair, its evaluation pair). Pose files
+    /// of other cameras than these are refused.
+    #[arg(long, value_delimiter = ',')]
+    pub cameras: Option<Vec<u8>>,
     /// Directory with DHP19's `P1..P4.npy` and `camera_positions.npy` (default: the
     /// calibration bundled in the binary, `assets/dhp19`).
     #[arg(long)]
@@ -50,23 +51,42 @@ pub struct TriangulateArgs {
 
 /// Runs `evpose triangulate`.
 pub fn triangulate(a: &TriangulateArgs) -> Result<()> {
-    let [ca, cb] = a.cameras[..] else {
-        bail!("--cameras takes two channels, got {:?}", a.cameras);
-    };
-    let camera = |c| match &a.calibration {
-        Some(dir) => dhp19::camera(dir, c),
-        None => dhp19::bundled_camera(c),
-    };
-    let (cam_a, cam_b) = (camera(ca)?, camera(cb)?);
     let explicit = |text: &str, what: &str| -> Result<Vec<View>> {
         let joints = parse_joints(text).with_context(|| what.to_owned())?;
-        Ok(vec![View { joints, t_us: None }])
+        Ok(vec![View {
+            joints,
+            t_us: None,
+            camera: None,
+        }])
     };
     let (views_a, views_b) = match (&a.joints_a, &a.joints_b, &a.poses[..]) {
         (Some(ja), Some(jb), _) => (explicit(ja, "--joints-a")?, explicit(jb, "--joints-b")?),
         (_, _, [pa, pb]) => (read_poses(pa)?, read_poses(pb)?),
         _ => bail!("give two pose files, or --joints-a and --joints-b"),
     };
+    // The cameras the pose files record (each file is one camera's: `read_poses` checks).
+    let recorded = |views: &[View]| views.first().and_then(|v| v.camera);
+    let files = recorded(&views_a)
+        .zip(recorded(&views_b))
+        .map(|(x, y)| vec![x, y]);
+    let cameras = match (&a.cameras, files) {
+        (Some(given), Some(files)) if *given != files => bail!(
+            "--cameras {} but the pose files are of cameras {} (in the order given)",
+            join(given),
+            join(&files)
+        ),
+        (Some(given), _) => given.clone(),
+        (None, Some(files)) => files,
+        (None, None) => dhp19::FRONT_CHANNELS.to_vec(),
+    };
+    let [ca, cb] = cameras[..] else {
+        bail!("--cameras takes two channels, got {cameras:?}");
+    };
+    let camera = |c| match &a.calibration {
+        Some(dir) => dhp19::camera(dir, c),
+        None => dhp19::bundled_camera(c),
+    };
+    let (cam_a, cam_b) = (camera(ca)?, camera(cb)?);
     for (window, pair) in pair_windows(&views_a, &views_b, a.by_position) {
         let Some(window_b) = pair else {
             eprintln!("note: window {window} of the first camera has no partner; skipped");
@@ -98,4 +118,9 @@ fn print_text(p: &WindowPose3d) {
         p.window_b,
         js.join(" ")
     );
+}
+
+/// `a,b` for messages.
+fn join(ids: &[u8]) -> String {
+    ids.iter().map(u8::to_string).collect::<Vec<_>>().join(",")
 }
