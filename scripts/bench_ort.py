@@ -34,8 +34,9 @@ def times_ms(path, x, iterations):
         start = time.perf_counter()
         s.run(None, {"points": x})
         t.append((time.perf_counter() - start) * 1e3)
-    # median_high: the same middle run as `evpose bench infer` takes (t[len / 2] of the sorted runs).
-    return statistics.median_high(t), min(t)
+    # The median as `evpose bench infer` takes it: the mean of the two middle runs for an even
+    # count (since stop 42; the upper one before, in both).
+    return statistics.median(t), min(t)
 
 
 def main():

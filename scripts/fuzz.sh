@@ -26,6 +26,7 @@ fuzz_one() {
   mkdir -p "corpus/$t" "artifacts/$t"
   cp -n "seeds/$t"/* "corpus/$t"/ 2>/dev/null || true
   local start=$SECONDS
+  touch "logs/$t.secs.start" # crash inputs saved after this one are this run's
   # -max_len: the largest seed, and at least 4 KiB.
   local max_len
   max_len=$(find "seeds/$t" -type f -printf '%s\n' | sort -n | tail -1)
@@ -41,13 +42,26 @@ export runs
 export ASAN_OPTIONS="${ASAN_OPTIONS:-quarantine_size_mb=16}"
 printf '%s\n' "${targets[@]}" | xargs -P 2 -I{} bash -c 'fuzz_one {}'
 printf '%-20s %12s %8s %5s %9s %13s %8s\n' target executions crashes oom timeouts peak_rss_mb seconds
+status=0
 for t in "${targets[@]}"; do
   log="logs/$t.log"
   execs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$log" | grep -o '[0-9]*$' || echo 0)
-  crash=$(grep -c 'ERROR: AddressSanitizer\|ERROR: libFuzzer: deadly signal\|panicked at' "$log" || true)
+  # One crash prints both a panic and libFuzzer's deadly signal: count the inputs saved.
+  crash=$(find "artifacts/$t" -name 'crash-*' -newer "logs/$t.secs.start" 2>/dev/null | wc -l)
   oom=$(grep -c 'ERROR: libFuzzer: out-of-memory\|malloc(.*) exceeds limit' "$log" || true)
   tmo=$(grep -c 'ERROR: libFuzzer: timeout' "$log" || true)
   rss=$(grep -o 'stat::peak_rss_mb: *[0-9]*' "$log" | grep -o '[0-9]*$' || echo '?')
   printf '%-20s %12s %8s %5s %9s %13s %8s\n' "$t" "${execs:-0}" "$crash" "$oom" "$tmo" "${rss:-?}" \
     "$(cat "logs/$t.secs")"
 done
+# A target that did not reach its executions without a finding (it did not build, or was
+# killed) is a failure, not a clean row; so is any finding.
+for t in "${targets[@]}"; do
+  execs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' "logs/$t.log" | grep -o '[0-9]*$' || echo 0)
+  findings=$(grep -c 'ERROR: AddressSanitizer\|ERROR: libFuzzer' "logs/$t.log" || true)
+  if [ "${execs:-0}" -lt "$runs" ] || [ "$findings" -gt 0 ]; then
+    echo "$t: ${execs:-0} of $runs executions, $findings finding(s): see logs/$t.log" >&2
+    status=1
+  fi
+done
+exit $status
