@@ -1226,6 +1226,24 @@ fn convert_raster_and_info_on_odd_input() {
     let (a, _) = evpose_host::array::read_f64(&tmp("jump-000.npy")).unwrap();
     let (b, _) = evpose_host::array::read_f64(&tmp("jump-001.npy")).unwrap();
     assert_eq!((a[0], b[0]), (2, 3));
+    // A camera the recording does not have: said, with the cameras it has.
+    let none = Command::new(env!("CARGO_BIN_EXE_evpose"))
+        .args([
+            "raster",
+            "--events",
+            s(&jump),
+            "--out",
+            s(&tmp("none.npy")),
+            "--camera",
+            "5",
+        ])
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&none.stderr);
+    assert!(
+        said.contains("camera 5 has no events (cameras with events: 0)"),
+        "{said}"
+    );
     let err = evpose_err(&[
         "raster",
         "--events",

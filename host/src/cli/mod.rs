@@ -343,8 +343,26 @@ fn raster(a: &RasterArgs) -> Result<()> {
         paths[0] = a.out.clone();
     }
     let s = report.stats;
+    if s.accepted == 0 {
+        // Nothing of the chosen camera: say which cameras the recording has.
+        let info = crate::summary::summarize_with(&a.events, &a.input.options())?;
+        let with: Vec<String> = info
+            .cameras
+            .iter()
+            .filter(|c| c.events > 0)
+            .map(|c| c.camera.to_string())
+            .collect();
+        if !with.is_empty() {
+            eprintln!(
+                "warning: camera {} has no events (cameras with events: {}); pass --camera",
+                a.camera,
+                with.join(", ")
+            );
+        }
+    }
     eprintln!(
-        "{} window(s) from {} events ({}x{}, K={}); dropped {} out of range; wrote {}{}",
+        "camera {}: {} window(s) from {} events ({}x{}, K={}); dropped {} out of range; wrote {}{}",
+        a.camera,
         report.windows,
         s.accepted,
         size.0,
