@@ -132,7 +132,22 @@ pub fn to_aedat4(
         .collect();
     if cameras.is_empty() {
         let id = camera.unwrap_or(0);
-        let (width, height) = (opts.size.map(|s| s.0), opts.size.map(|s| s.1));
+        if summary.events > 0 {
+            // The recording has events, not of this camera: an empty stream is written.
+            let with: Vec<String> = summary
+                .cameras
+                .iter()
+                .filter(|c| c.events > 0)
+                .map(|c| c.camera.to_string())
+                .collect();
+            warnings.push(format!(
+                "camera {id} has no events (cameras with events: {}); pass --camera",
+                with.join(", ")
+            ));
+        }
+        // The size the file states for its cameras (they share the sensor), else the flags.
+        let stated = summary.cameras.iter().find_map(|c| c.width.zip(c.height));
+        let (width, height) = stated.or(opts.size).unzip();
         cameras.push(CameraInfo {
             id,
             width,

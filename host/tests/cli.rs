@@ -1226,6 +1226,27 @@ fn convert_raster_and_info_on_odd_input() {
     let (a, _) = evpose_host::array::read_f64(&tmp("jump-000.npy")).unwrap();
     let (b, _) = evpose_host::array::read_f64(&tmp("jump-001.npy")).unwrap();
     assert_eq!((a[0], b[0]), (2, 3));
+    // convert to AEDAT 4 of a camera the recording lacks: said so (not "no sensor size").
+    let dhp = tmp("four.aedat");
+    let events = encoders::synthetic(400, 346, 260, 4, 0);
+    std::fs::write(&dhp, encoders::aedat2_davis346(&events, true)).unwrap();
+    let conv = Command::new(env!("CARGO_BIN_EXE_evpose"))
+        .args([
+            "convert",
+            s(&dhp),
+            "--out",
+            s(&tmp("five.aedat4")),
+            "--camera",
+            "5",
+        ])
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&conv.stderr);
+    assert!(
+        said.contains("camera 5 has no events (cameras with events: 0, 1, 2, 3)"),
+        "{said}"
+    );
+    assert!(!said.contains("states no sensor size"), "{said}");
     // A camera the recording does not have: said, with the cameras it has.
     let none = Command::new(env!("CARGO_BIN_EXE_evpose"))
         .args([
