@@ -44,24 +44,12 @@ const EXACT_IN_F64: i64 = 1 << 53;
 pub fn to_npy(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Result<Converted> {
     check_distinct(file, out)?;
     let summary = summarize_with(file, opts)?;
-    let mut warnings = Vec::new();
+    let warnings: Vec<String> = summary.no_events_warning(camera).into_iter().collect();
     let n = summary
         .cameras
         .iter()
         .find(|c| c.camera == camera)
         .map_or(0, |c| c.events);
-    if n == 0 && summary.events > 0 {
-        let ids: Vec<String> = summary
-            .cameras
-            .iter()
-            .filter(|c| c.events > 0)
-            .map(|c| c.camera.to_string())
-            .collect();
-        warnings.push(format!(
-            "camera {camera} has no events (cameras with events: {}); pass --camera",
-            ids.join(", ")
-        ));
-    }
     let mut reader = io::open_with(file, opts)?;
     let path = file;
     let file =
@@ -132,19 +120,8 @@ pub fn to_aedat4(
         .collect();
     if cameras.is_empty() {
         let id = camera.unwrap_or(0);
-        if summary.events > 0 {
-            // The recording has events, not of this camera: an empty stream is written.
-            let with: Vec<String> = summary
-                .cameras
-                .iter()
-                .filter(|c| c.events > 0)
-                .map(|c| c.camera.to_string())
-                .collect();
-            warnings.push(format!(
-                "camera {id} has no events (cameras with events: {}); pass --camera",
-                with.join(", ")
-            ));
-        }
+        // The recording has events, not of this camera: an empty stream is written.
+        warnings.extend(summary.no_events_warning(id));
         // The size the file states for its cameras (they share the sensor), else the flags.
         let stated = summary.cameras.iter().find_map(|c| c.width.zip(c.height));
         let (width, height) = stated.or(opts.size).unzip();

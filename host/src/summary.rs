@@ -52,6 +52,27 @@ pub struct RecordingSummary {
     pub notes: io::ReadNotes,
 }
 
+impl RecordingSummary {
+    /// A warning when `camera` has no events while the recording has some, naming the cameras
+    /// that do (for the commands that take `--camera`).
+    pub fn no_events_warning(&self, camera: u8) -> Option<String> {
+        let mine = self.cameras.iter().find(|c| c.camera == camera);
+        if mine.is_some_and(|c| c.events > 0) || self.events == 0 {
+            return None;
+        }
+        let with: Vec<String> = self
+            .cameras
+            .iter()
+            .filter(|c| c.events > 0)
+            .map(|c| c.camera.to_string())
+            .collect();
+        Some(format!(
+            "camera {camera} has no events (cameras with events: {}); pass --camera",
+            with.join(", ")
+        ))
+    }
+}
+
 /// Streams a recording once and summarizes it.
 pub fn summarize(path: &Path, format: Option<Format>) -> Result<RecordingSummary> {
     summarize_with(

@@ -308,11 +308,9 @@ fn convert(a: &ConvertArgs) -> Result<()> {
     Ok(())
 }
 
-/// Output path of window `index` when a run produces `total` windows.
-pub fn window_path(out: &Path, index: usize, several: bool) -> PathBuf {
-    if !several {
-        return out.to_path_buf();
-    }
+/// Output path of window `index`: `OUT-000.npy`, `OUT-001.npy`, … (a run that makes one
+/// window renames it back to `OUT`).
+pub fn window_path(out: &Path, index: usize) -> PathBuf {
     let stem = out.file_stem().unwrap_or_default().to_string_lossy();
     out.with_file_name(format!("{stem}-{index:03}.npy"))
 }
@@ -327,18 +325,17 @@ fn raster(a: &RasterArgs) -> Result<()> {
     };
     // Numbered files even without --window-events: a time jump can split the input into
     // windows (one file per window; a single one is renamed back below).
-    let several = true;
     let mut paths = Vec::new();
     let report = pipeline::rasterize(&a.events, &opts, |i, w| {
         let rows = pipeline::window_rows(w);
-        let path = window_path(&a.out, i, several);
+        let path = window_path(&a.out, i);
         array::write(&path, &[rows.len() as u64, 5], rows.as_flattened())?;
         paths.push(path);
         Ok(())
     })?;
     let size = report.size;
     // One window keeps the plain name.
-    if several && paths.len() == 1 {
+    if paths.len() == 1 {
         std::fs::rename(&paths[0], &a.out)?;
         paths[0] = a.out.clone();
     }
@@ -346,18 +343,8 @@ fn raster(a: &RasterArgs) -> Result<()> {
     if s.accepted == 0 {
         // Nothing of the chosen camera: say which cameras the recording has.
         let info = crate::summary::summarize_with(&a.events, &a.input.options())?;
-        let with: Vec<String> = info
-            .cameras
-            .iter()
-            .filter(|c| c.events > 0)
-            .map(|c| c.camera.to_string())
-            .collect();
-        if !with.is_empty() {
-            eprintln!(
-                "warning: camera {} has no events (cameras with events: {}); pass --camera",
-                a.camera,
-                with.join(", ")
-            );
+        if let Some(w) = info.no_events_warning(a.camera) {
+            eprintln!("warning: {w}");
         }
     }
     eprintln!(
