@@ -12,6 +12,8 @@
 //! both. Both tests also check that the image has no heap and no panic path beyond those
 //! `firmware/panic-paths.txt` lists, and print the firmware's figures
 //! (instructions per stage, per point-layer MAC, flash, RAM, stack); run with `--nocapture`.
+//! `firmware_reports_a_stack_overflow_under_qemu` runs an image that overflows its stack on
+//! purpose and requires the HardFault handler's report and exit code instead of a lockup.
 //!
 //! This file also holds the reference codec of the firmware's `EVS1` event stream (format in
 //! `firmware/src/input.rs`): the encoder that made `firmware/assets/street-00-02.evs` and an
@@ -19,7 +21,7 @@
 
 use std::io::Read as _;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::{Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use evpose_core::kernels::Kernels;
@@ -320,11 +322,20 @@ fn firmware_rustflags(cpu: Cpu) -> Vec<String> {
 /// Builds the release image for `cpu` (its own workspace; the M4's in a target folder of its
 /// own); returns the ELF's path.
 fn build_firmware(cpu: Cpu) -> PathBuf {
+    build_firmware_with(cpu, None)
+}
+
+/// [`build_firmware`] with one more cargo feature of the firmware, in a target folder named
+/// after it (so that it never replaces the pipeline's image that another test runs).
+fn build_firmware_with(cpu: Cpu, feature: Option<&str>) -> PathBuf {
     let dir = firmware_dir();
-    let target = match cpu {
+    let mut target = match cpu {
         Cpu::M7 => dir.join("target"),
         Cpu::M4 => dir.join("target/cortex-m4"),
     };
+    if let Some(f) = feature {
+        target = target.join(f);
+    }
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let mut cmd = Command::new(cargo);
     // The firmware's .cargo/config.toml (target, linker scripts, CPU) applies from its folder;
@@ -340,6 +351,9 @@ fn build_firmware(cpu: Cpu) -> PathBuf {
         "RUSTDOCFLAGS",
     ] {
         cmd.env_remove(var);
+    }
+    if let Some(f) = feature {
+        cmd.args(["--features", f]);
     }
     if cpu == Cpu::M4 {
         // The config's flags with the other CPU (the variable replaces the config's list).
@@ -358,7 +372,20 @@ fn build_firmware(cpu: Cpu) -> PathBuf {
 }
 
 /// Runs the image under QEMU; returns what it wrote to semihosting stdout (defmt frames).
+/// Panics if it fails or runs longer than [`QEMU_TIMEOUT`].
 fn run_qemu(elf: &Path, cpu: Cpu) -> Vec<u8> {
+    let (status, bytes, stderr) = qemu(elf, cpu);
+    let lines = defmt_lines(elf, &bytes).join("\n");
+    match status {
+        None => panic!("QEMU ran longer than {QEMU_TIMEOUT:?}; output:\n{lines}\n{stderr}"),
+        Some(s) if !s.success() => panic!("the firmware failed ({s}):\n{lines}\n{stderr}"),
+        Some(_) => bytes,
+    }
+}
+
+/// Runs the image under QEMU: its exit status (`None` if it ran longer than [`QEMU_TIMEOUT`]
+/// and was killed), what it wrote to semihosting stdout (defmt frames) and QEMU's stderr.
+fn qemu(elf: &Path, cpu: Cpu) -> (Option<ExitStatus>, Vec<u8>, String) {
     let mut child = Command::new("qemu-system-arm")
         .args([
             "-machine",
@@ -404,12 +431,7 @@ fn run_qemu(elf: &Path, cpu: Cpu) -> Vec<u8> {
     if let Some(mut e) = child.stderr.take() {
         let _ = e.read_to_string(&mut stderr);
     }
-    let lines = defmt_lines(elf, &bytes).join("\n");
-    match status {
-        None => panic!("QEMU ran longer than {QEMU_TIMEOUT:?}; output:\n{lines}\n{stderr}"),
-        Some(s) if !s.success() => panic!("the firmware failed ({s}):\n{lines}\n{stderr}"),
-        Some(_) => bytes,
-    }
+    (status, bytes, stderr)
 }
 
 /// Decodes defmt frames with the ELF's table into text lines (levels as `ERROR `… prefixes).
@@ -825,6 +847,40 @@ fn print_figures(cpu: Cpu, c: &Checked) {
         "{cpu:?} image: flash {} bytes, RAM {} bytes ({} static + {:?} stack)",
         image.flash_bytes, image.ram_bytes, image.static_ram_bytes, image.stack_bytes
     );
+}
+
+/// A stack overflow is reported, not a lockup: the image built with the `overflow-test` feature
+/// recurses without bound at boot, runs off the bottom of RAM (memory.x puts the stack there)
+/// and faults; the HardFault handler (`firmware/src/fault.rs`) moves to a valid stack before
+/// running any Rust, prints where the stack pointer went and exits with code 3. A handler on the
+/// overflowed stack faults again inside HardFault: QEMU then aborts ("Lockup: can't escalate")
+/// and a board hangs.
+#[test]
+fn firmware_reports_a_stack_overflow_under_qemu() {
+    require_tools();
+    let elf = build_firmware_with(Cpu::M7, Some("overflow-test"));
+    let (status, bytes, stderr) = qemu(&elf, Cpu::M7);
+    let text = defmt_lines(&elf, &bytes).join("\n");
+    assert_eq!(
+        status.and_then(|s| s.code()),
+        Some(3),
+        "the overflow did not end in the HardFault handler's exit; output:\n{text}\n{stderr}"
+    );
+    let line = text
+        .lines()
+        .find(|l| l.contains("hard fault: stack overflow"))
+        .unwrap_or_else(|| panic!("no stack overflow report:\n{text}"));
+    // The stack pointer it reports is below the stack region's bottom.
+    let field = |key: &str| {
+        let hex = line
+            .split_once(&format!(" {key}=0x"))
+            .map(|(_, rest)| &rest[..8])
+            .unwrap_or_else(|| panic!("no {key} in {line}"));
+        u32::from_str_radix(hex, 16).unwrap()
+    };
+    let (sp, bottom) = (field("sp"), field("bottom"));
+    assert!(sp < bottom, "{line}");
+    assert!(!text.contains("overflow-test: returned"), "{text}");
 }
 
 /// The firmware as a Cortex-M4F runs it, on QEMU's Cortex-M4: the same results, bit for bit,

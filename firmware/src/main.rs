@@ -20,12 +20,13 @@
 #![warn(clippy::undocumented_unsafe_blocks)]
 
 mod clock;
+mod fault;
 mod input;
 mod selftest;
 mod stack;
 
 use core::cell::Cell;
-use cortex_m_rt::{entry, exception, ExceptionFrame};
+use cortex_m_rt::entry;
 use defmt::println;
 use defmt_semihosting as _;
 
@@ -137,6 +138,8 @@ from!(ModelError => Model, ConfigError => Config, StreamError => Stream,
 #[entry]
 fn main() -> ! {
     stack::paint();
+    #[cfg(feature = "overflow-test")]
+    fault::overflow();
     let Some(cp) = cortex_m::Peripherals::take() else {
         exit(2)
     };
@@ -477,16 +480,6 @@ fn print_lagged(lagged: &mut FixedLag<'_>, clock: &StageClock) -> u64 {
             k, took, bits
         );
     }
-}
-
-#[exception]
-unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
-    defmt::error!(
-        "hard fault: pc={=u32:#010x} lr={=u32:#010x}",
-        frame.pc(),
-        frame.lr()
-    );
-    exit(3)
 }
 
 #[panic_handler]

@@ -14,7 +14,8 @@ extern "C" {
     static _stack_end: u32;
 }
 
-fn bounds() -> (usize, usize) {
+/// The stack region, `(bottom, top)`: `_stack_end` and `_stack_start` of memory.x.
+pub fn bounds() -> (usize, usize) {
     // Only the addresses of the linker symbols are used, never their contents.
     (
         core::ptr::addr_of!(_stack_end) as usize,
