@@ -440,7 +440,7 @@ impl<'m> Plan<'m> {
     }
 
     /// The checks of a run: buffer lengths only.
-    fn check(
+    pub(crate) fn check(
         &self,
         points: usize,
         scratch: usize,

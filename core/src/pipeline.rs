@@ -49,7 +49,7 @@
 use core::fmt;
 
 use crate::infer::{InferError, Plan};
-use crate::model::{CRC, FEATURES};
+use crate::model::{DType, CRC, FEATURES};
 use crate::raster::{RasterStats, RasterStorage, Rasterizer, Window};
 use crate::sample::{rng_from_seed, sample_window, BufferTooSmall, SampleRng};
 use crate::simdr::{decode, Joint2d, ShapeError};
@@ -136,6 +136,8 @@ impl Profiler for () {
 pub trait Engine {
     /// The scratch and head-output element: `i32` for int8, `f32` for f32.
     type Value: Copy + PartialOrd + Default;
+    /// The model type this engine runs.
+    const DTYPE: DType;
     /// Runs `plan` with this engine.
     fn run(
         plan: &Plan<'_>,
@@ -158,6 +160,7 @@ pub struct F32;
 
 impl Engine for I8 {
     type Value = i32;
+    const DTYPE: DType = DType::I8;
     fn run(
         plan: &Plan<'_>,
         points: &[[f32; FEATURES]],
@@ -174,6 +177,7 @@ impl Engine for I8 {
 
 impl Engine for F32 {
     type Value = f32;
+    const DTYPE: DType = DType::F32;
     fn run(
         plan: &Plan<'_>,
         points: &[[f32; FEATURES]],
@@ -368,6 +372,36 @@ impl<'m> Estimator<'m> {
         self.windows
     }
 
+    /// Whether `ws` can hold the estimate of any window of up to `capacity` events: sampling
+    /// buffers of [`crate::sample::sample_len`]`(capacity, N)` rows and indices, an engine of
+    /// the plan's model type, head outputs of [`Plan::out_x_len`] and [`Plan::out_y_len`],
+    /// [`Plan::scratch_words`] of scratch and room for the model's joints. What
+    /// [`Estimator::estimate`] would refuse, told before a window is taken.
+    pub fn check_workspace<E: Engine>(
+        &self,
+        ws: &Workspace<'_, E>,
+        capacity: usize,
+    ) -> Result<(), PipelineError> {
+        let needed = crate::sample::sample_len(capacity, self.points);
+        let available = ws.rows.len().min(ws.indices.len());
+        if available < needed {
+            return Err(PipelineError::Sample(BufferTooSmall { needed, available }));
+        }
+        let model = self.plan.model();
+        if model.dtype() != E::DTYPE {
+            return Err(PipelineError::Infer(InferError::DType));
+        }
+        self.plan
+            .check(needed.max(1), ws.scratch.len(), (ws.x.len(), ws.y.len()))?;
+        if ws.joints.len() < model.joints() {
+            return Err(PipelineError::Decode(ShapeError::Length {
+                expected: model.joints(),
+                got: ws.joints.len(),
+            }));
+        }
+        Ok(())
+    }
+
     /// Samples, infers and decodes one closed window in `ws`.
     pub fn estimate<'a, E: Engine>(
         &mut self,
@@ -436,16 +470,16 @@ impl<'m, S: RasterStorage> Session<'m, S> {
     /// Feeds events until one closes a window (as [`Rasterizer::extend`]); returns how many
     /// were used and, when a window closed, its estimate.
     ///
-    /// A workspace whose sampling buffers cannot hold a window's sample
-    /// ([`Workspace::rows`]) is refused before any event is used, so that the caller can feed
-    /// the same events again with larger buffers.
+    /// A workspace that cannot hold a window's estimate ([`Estimator::check_workspace`]: its
+    /// sampling buffers, engine, head outputs, scratch and joints) is refused before any event
+    /// is used, so that the caller can feed the same events again with a workspace that fits.
     pub fn extend<'a, E: Engine>(
         &'a mut self,
         events: &[Event],
         ws: &'a mut Workspace<'_, E>,
         prof: &mut impl Profiler,
     ) -> Result<(usize, Option<Estimate<'a>>), PipelineError> {
-        self.check_sampling(ws)?;
+        self.estimator.check_workspace(ws, self.raster.capacity())?;
         prof.begin(Step::Rasterize);
         let (used, closed) = {
             let (used, window) = self.raster.extend(events);
@@ -460,29 +494,18 @@ impl<'m, S: RasterStorage> Session<'m, S> {
     }
 
     /// Closes the open window (possibly empty: sampling then gives `N` zero points) and
-    /// estimates it. Sampling buffers too small for a window are refused first, as in
+    /// estimates it. A workspace that cannot hold the estimate is refused first, as in
     /// [`Session::extend`], with the window still open.
     pub fn flush<'a, E: Engine>(
         &'a mut self,
         ws: &'a mut Workspace<'_, E>,
         prof: &mut impl Profiler,
     ) -> Result<Estimate<'a>, PipelineError> {
-        self.check_sampling(ws)?;
+        self.estimator.check_workspace(ws, self.raster.capacity())?;
         self.raster.flush();
         let stats = *self.raster.stats();
         let w = self.raster.last_window().unwrap_or_default();
         self.estimator.estimate(w, stats, ws, prof)
-    }
-
-    /// Whether `ws`'s sampling buffers hold the sample of any window this session can close
-    /// (`sample_len(capacity, N)` rows and indices).
-    fn check_sampling<E: Engine>(&self, ws: &Workspace<'_, E>) -> Result<(), PipelineError> {
-        let needed = crate::sample::sample_len(self.raster.capacity(), self.estimator.points);
-        let available = ws.rows.len().min(ws.indices.len());
-        if available < needed {
-            return Err(PipelineError::Sample(BufferTooSmall { needed, available }));
-        }
-        Ok(())
     }
 
     /// Feeds a whole batch, calling `on_window` with each window it closes, in order: the

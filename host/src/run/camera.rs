@@ -375,8 +375,10 @@ mod tests {
 
     #[test]
     fn a_workspace_too_small_for_a_window_is_refused_before_any_event_is_used() {
-        use evpose_core::pipeline::{PipelineError, Workspace};
+        use evpose_core::pipeline::{PipelineError, Workspace, F32};
         use evpose_core::sample::BufferTooSmall;
+        use evpose_core::simdr::ShapeError;
+        use evpose_core::InferError;
         let blob = crate::model::AlignedBlob::new(crate::assets::DEFAULT_MODEL);
         let runner = CoreRunner::new(&blob).unwrap();
         let plan = runner.plan().unwrap();
@@ -387,7 +389,8 @@ mod tests {
         let events: Vec<Event> = (0..100)
             .map(|i| Event::new(i, 7, i64::from(i), true))
             .collect();
-        {
+        // Each buffer one element short, in turn: refused, and no event taken.
+        for short in 0..4 {
             let Workspace {
                 indices,
                 rows,
@@ -396,21 +399,52 @@ mod tests {
                 y,
                 joints,
             } = buffers.workspace();
+            // One short of what a window needs, or the whole buffer.
+            let cut =
+                |len: usize, needed: usize, i: usize| if short == i { needed - 1 } else { len };
+            let (nr, ns, nx, nj) = (
+                cut(rows.len(), 100, 0),
+                cut(scratch.len(), plan.scratch_words(), 1),
+                cut(x.len(), plan.out_x_len(), 2),
+                cut(joints.len(), plan.model().joints(), 3),
+            );
             let mut small = Workspace::<I8> {
                 indices,
-                rows: &mut rows[..99],
-                scratch,
-                x,
+                rows: &mut rows[..nr],
+                scratch: &mut scratch[..ns],
+                x: &mut x[..nx],
                 y,
-                joints,
+                joints: &mut joints[..nj],
             };
             let err = session.extend(&events, &mut small, &mut ()).unwrap_err();
-            let want = BufferTooSmall {
-                needed: 100,
-                available: 99,
+            let want = match short {
+                0 => PipelineError::Sample(BufferTooSmall {
+                    needed: 100,
+                    available: 99,
+                }),
+                1 => PipelineError::Infer(InferError::Scratch {
+                    needed: ns + 1,
+                    got: ns,
+                }),
+                2 => PipelineError::Infer(InferError::Output {
+                    needed: nx + 1,
+                    got: nx,
+                }),
+                _ => PipelineError::Decode(ShapeError::Length {
+                    expected: nj + 1,
+                    got: nj,
+                }),
             };
-            assert_eq!(err, PipelineError::Sample(want));
+            assert_eq!(err, want);
+            assert_eq!(session.rasterizer().buffered(), 0);
+            assert_eq!(session.rasterizer().stats().accepted, 0);
         }
+        // An f32 workspace for the int8 plan.
+        let mut f32_buffers = crate::run::Buffers::<F32>::new(&plan, 0, 100);
+        let err = session
+            .extend(&events, &mut f32_buffers.workspace(), &mut ())
+            .unwrap_err();
+        assert_eq!(err, PipelineError::Infer(InferError::DType));
         assert_eq!(session.rasterizer().buffered(), 0);
         // The same events again, with room: the whole window.
         let mut ws = buffers.workspace();
