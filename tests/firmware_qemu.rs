@@ -617,7 +617,7 @@ fn host_windows(events: &[Event], blob: &[u8], lag: LagParams) -> (Vec<WindowRes
     };
     let scales = model.head_scales().expect("a version 3 blob");
     let mut smooth_state = vec![AxisState::default(); 2 * j];
-    let mut smoother = Smoother::new(SmoothParams::DEFAULT, &mut smooth_state);
+    let mut smoother = Smoother::new(SmoothParams::DEFAULT, &mut smooth_state).unwrap();
     let mut lag_slots = vec![LagSlot::default(); FixedLag::slots_for(lag.lag)];
     let mut lag_held = vec![Held::default(); lag_slots.len() * j];
     let mut lagged = FixedLag::with_params(lag, j, &mut lag_slots, &mut lag_held).unwrap();

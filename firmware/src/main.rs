@@ -35,7 +35,8 @@ use evpose_core::model::{DType, ModelError, FEATURES};
 use evpose_core::pipeline::{Digest, Estimate, PipelineError, Profiler, Step, I8};
 use evpose_core::raster::ConfigError;
 use evpose_core::smooth::{
-    AxisState, FixedLag, Held, LagError, LagParams, LagSlot, SmoothParams, Smoother, StateTooSmall,
+    AxisState, BadSmoothParams, FixedLag, Held, LagError, LagParams, LagSlot, SmoothParams,
+    Smoother, StateTooSmall,
 };
 use evpose_core::{
     scratch_words_for_block, widen_point_layers, Davis346Storage, Estimator, Event, InferError,
@@ -117,6 +118,8 @@ enum Error {
     NoHeadScales,
     /// The temporal filter's state does not hold the model's joints.
     Smooth(StateTooSmall),
+    /// The One-Euro filter's parameters make no filter.
+    SmoothParams(BadSmoothParams),
     /// The fixed-lag filter refused (its state, or a window's shape).
     Lag(LagError),
     /// A static buffer was taken twice (`run` takes each once).
@@ -310,7 +313,8 @@ fn run(per_tick: u64) -> Result<(), Error> {
     // The causal One-Euro filter (`core::smooth::Smoother`, the parameters of `evpose run
     // --smooth one-euro`): 26 coordinates.
     let mut smooth_state = [AxisState::default(); 2 * JOINTS];
-    let mut smoother = Smoother::new(SmoothParams::DEFAULT, &mut smooth_state);
+    let mut smoother =
+        Smoother::new(SmoothParams::DEFAULT, &mut smooth_state).map_err(Error::SmoothParams)?;
     // The fixed-lag filter (`core::smooth::FixedLag`): lag 1 here, 3 on the host by default.
     // The bundled stream has three windows; with lag 3 each would be the mean of all three, and
     // the host comparison would show less. Each window comes out one window later, the last

@@ -100,7 +100,7 @@ pub fn smooth(
     let mut out: Vec<Joints2d> = predictions.iter().map(|p| p.joints).collect();
     let mut state = [AxisState::default(); 2 * JOINTS];
     for rows in sequences(ds)? {
-        let mut f = Smoother::new(params, &mut state);
+        let mut f = Smoother::new(params, &mut state)?;
         for &i in &rows {
             let p = &predictions[i];
             let joints = p.core_joints();

@@ -12,7 +12,9 @@
 //! passes). Confidence gating scales the step: `α' = α · min(1, c / full_confidence)`, so a joint
 //! the network is unsure of (a limb that made no events in this window) mostly keeps its
 //! filtered position, and a confident one follows the new estimate. The first window of a
-//! sequence, and any window after a gap longer than `reset_after_us`, is taken as is.
+//! sequence, any window after a gap longer than `reset_after_us` and any window that ends
+//! before the previous one are taken as is; a window that ends when the previous one did
+//! (`dt = 0`, every `α` 0) keeps the filtered joints.
 //!
 //! Fixed memory: the caller lends one [`AxisState`] per coordinate (`2 × J`); no allocation,
 //! `f32` with `libm`, the same bits on the host and an MCU.
@@ -77,6 +79,54 @@ impl Default for SmoothParams {
     }
 }
 
+impl SmoothParams {
+    /// Whether the parameters make a filter: every cut-off finite and positive, `beta` and
+    /// `full_confidence` finite and not negative, `reset_after_us` not negative. Anything
+    /// else turns the filter's state into NaN or infinity at the first step (`beta = inf`
+    /// times a zero rate is NaN), which only a reset would clear.
+    pub fn check(&self) -> Result<(), BadSmoothParams> {
+        let positive = |v: f32| v.is_finite() && v > 0.0;
+        let not_negative = |v: f32| v.is_finite() && v >= 0.0;
+        let bad = if !positive(self.min_cutoff_hz) {
+            Some("min_cutoff_hz")
+        } else if !not_negative(self.beta) {
+            Some("beta")
+        } else if !positive(self.d_cutoff_hz) {
+            Some("d_cutoff_hz")
+        } else if !not_negative(self.full_confidence) {
+            Some("full_confidence")
+        } else if self.reset_after_us < 0 {
+            Some("reset_after_us")
+        } else {
+            None
+        };
+        match bad {
+            Some(field) => Err(BadSmoothParams { field }),
+            None => Ok(()),
+        }
+    }
+}
+
+/// [`SmoothParams`] that make no filter ([`SmoothParams::check`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BadSmoothParams {
+    /// The first offending field.
+    pub field: &'static str,
+}
+
+impl core::fmt::Display for BadSmoothParams {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let want = match self.field {
+            "min_cutoff_hz" | "d_cutoff_hz" => "finite and above 0",
+            _ => "finite and not negative",
+        };
+        write!(f, "smoothing parameter {} must be {want}", self.field)
+    }
+}
+
+impl core::error::Error for BadSmoothParams {}
+
 /// One filtered coordinate.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct AxisState {
@@ -120,13 +170,15 @@ fn alpha(cutoff_hz: f32, dt_s: f32) -> f32 {
 }
 
 impl<'s> Smoother<'s> {
-    /// A filter over the lent `state` (two coordinates per joint).
-    pub fn new(params: SmoothParams, state: &'s mut [AxisState]) -> Self {
-        Self {
+    /// A filter over the lent `state` (two coordinates per joint), or why `params` make none
+    /// ([`SmoothParams::check`]).
+    pub fn new(params: SmoothParams, state: &'s mut [AxisState]) -> Result<Self, BadSmoothParams> {
+        params.check()?;
+        Ok(Self {
             params,
             state,
             last_t_us: None,
-        }
+        })
     }
 
     /// Forgets the sequence: the next window is taken as is.
@@ -155,9 +207,11 @@ impl<'s> Smoother<'s> {
         let p = self.params;
         // A step that does not fit an i64 (a glitched timestamp) restarts like any long gap.
         let dt_us = self.last_t_us.and_then(|last| t_us.checked_sub(last));
-        let fresh = match dt_us {
-            None => true,
-            Some(d) => d <= 0 || d > p.reset_after_us,
+        // A window ending when the last did (dt = 0, where every α is 0) keeps the state and
+        // outputs it; one ending before it (time went backwards) restarts.
+        let (fresh, hold) = match dt_us {
+            None => (true, false),
+            Some(d) => (d < 0 || d > p.reset_after_us, d == 0),
         };
         self.last_t_us = Some(t_us);
         let dt = dt_us.map_or(0.0, |d| d as f32 * 1e-6);
@@ -187,7 +241,7 @@ impl<'s> Smoother<'s> {
                         value: raw,
                         rate: 0.0,
                     };
-                } else {
+                } else if !hold {
                     let rate = (raw - s.value) / dt;
                     let a_d = alpha(p.d_cutoff_hz, dt) * gate;
                     s.rate += a_d * (rate - s.rate);
@@ -208,7 +262,7 @@ mod tests {
 
     fn run(params: SmoothParams, seq: &[(i64, u16, f32)]) -> [f32; 8] {
         let mut state = [AxisState::default(); 2];
-        let mut f = Smoother::new(params, &mut state);
+        let mut f = Smoother::new(params, &mut state).unwrap();
         let mut out = [0f32; 8];
         for (i, &(t, x, c)) in seq.iter().enumerate() {
             let mut o = [[0f32; 2]];
@@ -275,9 +329,102 @@ mod tests {
     }
 
     #[test]
+    fn a_window_at_the_same_time_holds_the_filtered_joints() {
+        let p = SmoothParams::DEFAULT;
+        // dt = 0: every α is 0, so neither a confident nor an unsure estimate moves the state
+        // (it restarted before, and a 0-confidence joint jumped to the raw estimate).
+        for c in [0.0, 1.0] {
+            let same = run(p, &[(0, 100, 1.0), (33_000, 100, 1.0), (33_000, 200, c)]);
+            assert_eq!(&same[..3], &[100.0, 100.0, 100.0], "confidence {c}");
+        }
+        // The next window filters on from the held state, with the real dt.
+        let after = run(
+            p,
+            &[
+                (0, 100, 1.0),
+                (33_000, 100, 1.0),
+                (33_000, 200, 1.0),
+                (66_000, 110, 1.0),
+            ],
+        );
+        let direct = run(p, &[(0, 100, 1.0), (33_000, 100, 1.0), (66_000, 110, 1.0)]);
+        assert_eq!(after[3], direct[2]);
+    }
+
+    #[test]
+    fn parameters_that_make_no_filter_are_refused() {
+        let mut state = [AxisState::default(); 2];
+        let d = SmoothParams::DEFAULT;
+        let cases = [
+            (
+                SmoothParams {
+                    beta: f32::INFINITY,
+                    ..d
+                },
+                "beta",
+            ),
+            (SmoothParams { beta: -1.0, ..d }, "beta"),
+            (
+                SmoothParams {
+                    min_cutoff_hz: f32::NAN,
+                    ..d
+                },
+                "min_cutoff_hz",
+            ),
+            (
+                SmoothParams {
+                    min_cutoff_hz: -1.0,
+                    ..d
+                },
+                "min_cutoff_hz",
+            ),
+            (
+                SmoothParams {
+                    min_cutoff_hz: 0.0,
+                    ..d
+                },
+                "min_cutoff_hz",
+            ),
+            (
+                SmoothParams {
+                    d_cutoff_hz: 0.0,
+                    ..d
+                },
+                "d_cutoff_hz",
+            ),
+            (
+                SmoothParams {
+                    full_confidence: f32::NAN,
+                    ..d
+                },
+                "full_confidence",
+            ),
+            (
+                SmoothParams {
+                    reset_after_us: -1,
+                    ..d
+                },
+                "reset_after_us",
+            ),
+        ];
+        for (params, field) in cases {
+            let err = Smoother::new(params, &mut state).unwrap_err();
+            assert_eq!(err, BadSmoothParams { field }, "{params:?}");
+        }
+        // Zero beta (no speed term) and zero full confidence (no gating) are filters.
+        let edge = SmoothParams {
+            beta: 0.0,
+            full_confidence: 0.0,
+            ..d
+        };
+        let o = run(edge, &[(0, 100, 1.0), (33_000, 110, 1.0)]);
+        assert!(o[1] > 100.0 && o[1] < 110.0, "{o:?}");
+    }
+
+    #[test]
     fn too_little_state_is_an_error() {
         let mut state = [AxisState::default(); 3];
-        let mut f = Smoother::new(SmoothParams::DEFAULT, &mut state);
+        let mut f = Smoother::new(SmoothParams::DEFAULT, &mut state).unwrap();
         let j = [Joint2d::default(); 2];
         let mut o = [[0f32; 2]; 2];
         assert_eq!(

@@ -152,14 +152,24 @@ pub struct EvalArgs {
 }
 
 impl EvalArgs {
-    /// The filter parameters of `--smooth`.
-    pub fn smooth_params(&self) -> SmoothParams {
-        SmoothParams {
+    /// The filter parameters of `--smooth`, or why they make no filter.
+    pub fn smooth_params(&self) -> Result<SmoothParams> {
+        let p = SmoothParams {
             min_cutoff_hz: self.min_cutoff,
             beta: self.beta,
             full_confidence: self.full_confidence,
             ..SmoothParams::DEFAULT
-        }
+        };
+        p.check().map_err(|e| {
+            let option = match e.field {
+                "min_cutoff_hz" => "--min-cutoff",
+                "beta" => "--beta",
+                "full_confidence" => "--full-confidence",
+                other => other,
+            };
+            anyhow::anyhow!("{option}: {e}")
+        })?;
+        Ok(p)
     }
 }
 
@@ -178,6 +188,8 @@ fn warn_points(blob: &model::AlignedBlob, ds: &Dataset) {
 
 /// Runs `evpose eval`.
 pub fn eval(a: &EvalArgs) -> Result<()> {
+    // Before any work: parameters that make no filter are refused.
+    let smooth = a.smooth.then(|| a.smooth_params()).transpose()?;
     let ds = Dataset::open(&a.data)?;
     if ds.is_empty() {
         bail!("{}: no samples", a.data.display());
@@ -258,9 +270,8 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
             .sum();
         report.mean_confidence = Some(sum / (predictions.len() * dataset::JOINTS) as f64);
     }
-    if a.smooth {
-        let smoothed = eval::smooth(&ds, &predictions, a.smooth_params())?;
-        let p = a.smooth_params();
+    if let Some(p) = smooth {
+        let smoothed = eval::smooth(&ds, &predictions, p)?;
         let name = format!(
             "{predictor}, causal One-Euro filter (min cut-off {} Hz, beta {}, full confidence {})",
             p.min_cutoff_hz, p.beta, p.full_confidence

@@ -616,7 +616,10 @@ pub fn run(
         .map(|&j| vec![AxisState::default(); 2 * j])
         .collect();
     let mut euros: Vec<Smoother<'_>> = match opts.filter {
-        Filter::OneEuro(p) => euro_state.iter_mut().map(|s| Smoother::new(p, s)).collect(),
+        Filter::OneEuro(p) => euro_state
+            .iter_mut()
+            .map(|s| Smoother::new(p, s))
+            .collect::<Result<_, _>>()?,
         _ => Vec::new(),
     };
     // The fixed-lag filter's: 2·lag + 1 windows per camera.
