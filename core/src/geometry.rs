@@ -323,6 +323,10 @@ pub fn triangulate_views(views: &[(&Camera, (f64, f64), f64)]) -> Result<[f64; 3
     if used < 2 {
         return Err(GeometryError::TooFewViews { views: used });
     }
+    // The weights relative to the largest, so that extreme finite weights (f64::MAX, or
+    // subnormal ones) neither overflow R nor vanish in it; the minimizer is the same. Equal
+    // weights all become exactly 1.
+    let heaviest = views.iter().fold(0.0f64, |m, v| m.max(v.2));
     // Normal equations of min_p Σ wᵢ |(I − nᵢnᵢᵀ)(p − cᵢ)|²: R p = q.
     let (mut r, mut q) = (Matrix3::zeros(), Vector3::zeros());
     let mut first: Option<(Vector3<f64>, Vector3<f64>)> = None;
@@ -337,6 +341,7 @@ pub fn triangulate_views(views: &[(&Camera, (f64, f64), f64)]) -> Result<[f64; 3
             }
         }
         let proj = projector(&n);
+        let w = w / heaviest;
         r += proj * w;
         q += proj * cam.centre * w;
     }
@@ -497,12 +502,26 @@ mod tests {
         ] {
             assert!(max_abs_diff(triangulate_views(views).unwrap(), x) < 1e-9);
         }
-        // Equal weights are `triangulate`, bit for bit.
+        // Equal weights are `triangulate`, bit for bit, whatever their size (the extremes
+        // of f64 included: they overflowed or vanished in the normal equations before the
+        // weights were taken relative to the largest).
         let jb_off = (jb.0 + 6.0, jb.1 - 4.0);
-        assert_eq!(
-            triangulate_views(&[(&a, ja, 1.0), (&b, jb_off, 1.0)]).unwrap(),
-            triangulate(&a, ja, &b, jb_off).unwrap()
-        );
+        let two = triangulate(&a, ja, &b, jb_off).unwrap();
+        for w in [1.0, 0.3, 1e300, f64::MAX, f64::MIN_POSITIVE, 5e-324] {
+            assert_eq!(
+                triangulate_views(&[(&a, ja, w), (&b, jb_off, w)]).unwrap(),
+                two,
+                "weight {w}"
+            );
+        }
+        // Scaling every weight by one factor moves nothing (to round-off).
+        let scaled = |k: f64| {
+            triangulate_views(&[(&a, ja, 0.2 * k), (&b, jb_off, 0.9 * k), (&c, jc, 0.5 * k)])
+                .unwrap()
+        };
+        for k in [1e-300, 1e300, f64::MAX / 0.9] {
+            assert!(max_abs_diff(scaled(k), scaled(1.0)) < 1e-9, "factor {k}");
+        }
         // B's point is 7 px off, A's and C's are exact: trusting B less (weight 0.1 against
         // 1) lands far closer (under half the error) to the truth than trusting all three equally, trusting B more
         // lands farther. (With two views only the rays' common perpendicular is weighted.)

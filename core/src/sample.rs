@@ -59,9 +59,10 @@ pub const fn sample_len(m: usize, n: usize) -> usize {
     }
 }
 
-/// Uniform integer in `0..bound` (`bound > 0`) from 32-bit outputs, without bias
-/// (Lemire, "Fast Random Integer Generation in an Interval", 2019).
-pub fn below<R: RngCore>(rng: &mut R, bound: u32) -> u32 {
+/// Uniform integer in `0..bound` (`bound > 0`, which its one caller guarantees; crate-private
+/// so that no caller can pass 0) from 32-bit outputs, without bias (Lemire, "Fast Random
+/// Integer Generation in an Interval", 2019).
+pub(crate) fn below<R: RngCore>(rng: &mut R, bound: u32) -> u32 {
     debug_assert!(bound > 0);
     let mut m = u64::from(rng.next_u32()) * u64::from(bound);
     if (m as u32) < bound {

@@ -80,8 +80,10 @@ pub fn decode<T: PartialOrd + Copy>(
         }
     }
     let joints = out.len();
-    check_len(x.len(), joints * width)?;
-    check_len(y.len(), joints * height)?;
+    // A product past usize (a 32-bit target) is a length no slice has.
+    let len = |axis: usize| joints.checked_mul(axis).ok_or(ShapeError::Axis(axis));
+    check_len(x.len(), len(width)?)?;
+    check_len(y.len(), len(height)?)?;
     for ((joint, xs), ys) in out
         .iter_mut()
         .zip(x.chunks_exact(width))
@@ -109,8 +111,13 @@ fn check_len(got: usize, expected: usize) -> Result<(), ShapeError> {
 }
 
 /// Whether a joint at `(x, y)` gets a label: false when its `±3σ` box lies entirely outside the
-/// `width × height` image (the SimDR reference rule, with Python's truncating `int`).
+/// `width × height` image (the SimDR reference rule, with Python's truncating `int`), and for
+/// a joint without a position (a NaN or infinite coordinate: DHP19's Vicon loses markers;
+/// the reference's `int(nan)` raises instead of labelling pixel 0).
 pub fn visible(x: f32, y: f32, width: usize, height: usize, sigma: f32) -> bool {
+    if !(x.is_finite() && y.is_finite()) {
+        return false;
+    }
     let r = 3.0 * sigma;
     let (ul_x, ul_y) = ((x - r) as i64, (y - r) as i64);
     let (br_x, br_y) = ((x + r + 1.0) as i64, (y + r + 1.0) as i64);
@@ -153,6 +160,22 @@ pub fn encode_joint(x: f32, y: f32, sigma: f32, out_x: &mut [f32], out_y: &mut [
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_joint_without_a_position_gets_no_label() {
+        let (mut x, mut y) = ([1.0f32; 8], [1.0f32; 6]);
+        for (u, v) in [
+            (f32::NAN, 3.0),
+            (3.0, f32::NAN),
+            (f32::INFINITY, 2.0),
+            (2.0, f32::NEG_INFINITY),
+        ] {
+            assert!(!visible(u, v, 8, 6, 2.0), "{u} {v}");
+            assert_eq!(encode_joint(u, v, 2.0, &mut x, &mut y), 0.0, "{u} {v}");
+            assert!(x.iter().chain(&y).all(|&l| l == 0.0));
+        }
+        assert_eq!(encode_joint(3.0, 2.0, 2.0, &mut x, &mut y), 1.0);
+    }
 
     #[test]
     fn argmax_first_index_wins_ties() {
