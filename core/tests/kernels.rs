@@ -392,8 +392,14 @@ fn expected_mm(w: &[i8], k: usize, x: &[i8], bias: &[i32], out: &[i32], stride: 
     if rows == 0 {
         return o;
     }
-    for p in 0.. {
-        if (p + 1) * k > x.len() || p * stride + rows > o.len() {
+    for p in 0usize.. {
+        let fits = |v: Option<usize>, len: usize| v.is_some_and(|v| v <= len);
+        if !fits((p + 1).checked_mul(k), x.len())
+            || !fits(
+                p.checked_mul(stride).and_then(|o| o.checked_add(rows)),
+                o.len(),
+            )
+        {
             break;
         }
         let y = &mut o[p * stride..][..rows];
@@ -650,6 +656,21 @@ fn i8_matmat_k_zero_p_zero_and_degenerate_strides() {
     assert_eq!(kernels::matmat_dims(2, 10, 6, 5, 7, 4), (1, 4));
     assert_eq!(kernels::matmat_dims(2, 10, 6, 5, 3, 4), (0, 0));
     assert_eq!(kernels::matmat_dims(2, 10, 6, 5, 100, 0), (0, 0));
+    // Strides whose multiple by four (the Cortex-M kernel's block of points) overflows: one
+    // point, computed like any other (the Arm kernel wrote nothing before), and with x for
+    // five points still one, as out holds one row.
+    for stride in [usize::MAX / 4 + 1, usize::MAX / 2, usize::MAX] {
+        for x_len in [3, 15] {
+            check_mm(
+                &[1, 2, 3, 4, 5, 6],
+                3,
+                &vec![1; x_len],
+                &[10, 20],
+                2,
+                stride,
+            );
+        }
+    }
 }
 
 #[test]

@@ -781,19 +781,20 @@ fn matmat_blocks<R: BlockRows>(
     );
     let blocks = points / BLOCK_POINTS;
     // Both products are below the slice lengths when a block exists (`matmat_dims`), and
-    // non-zero (`k ≥ 1`; `rows ≥ 1` implies `out_stride ≥ 1`).
-    let (Some(xk), Some(os)) = (
+    // non-zero (`k ≥ 1`; `rows ≥ 1` implies `out_stride ≥ 1`). Without a block they may
+    // overflow (one point and an `out_stride` of `usize::MAX`): then only the tail runs.
+    if let (true, Some(xk), Some(os)) = (
+        blocks > 0,
         k.checked_mul(BLOCK_POINTS).filter(|&v| v > 0),
         out_stride.checked_mul(BLOCK_POINTS).filter(|&v| v > 0),
-    ) else {
-        return;
-    };
-    for (xb, ob) in x.chunks_exact(xk).zip(out.chunks_mut(os)).take(blocks) {
-        let mut k0 = 0;
-        while k0 < k {
-            let kc = CHUNK.min(k - k0);
-            block_chunk(src, w, k, k0, kc, xb, bias, ob, out_stride);
-            k0 += kc;
+    ) {
+        for (xb, ob) in x.chunks_exact(xk).zip(out.chunks_mut(os)).take(blocks) {
+            let mut k0 = 0;
+            while k0 < k {
+                let kc = CHUNK.min(k - k0);
+                block_chunk(src, w, k, k0, kc, xb, bias, ob, out_stride);
+                k0 += kc;
+            }
         }
     }
     let done = blocks * BLOCK_POINTS;

@@ -11,7 +11,7 @@
 //! | `avx512bw` | the same on 512-bit registers | 32 |
 //! | `avxvnni` | `vpdpbusd` (u8 × s8 → i32), 256-bit | 32 |
 //! | `avx512vnni` | `vpdpbusd`, 512-bit | 64 |
-//! | `amx` (packed int8 layers, `K` a multiple of 64 and ≥ 256; else `avx512vnni`) | `tdpbsud` on 16 × 64-byte tiles | 16,384 |
+//! | `amx` (packed int8 layers, `K` a multiple of 64 and ≥ 128 ([`AMX_MIN_K`]); else `avx512vnni`) | `tdpbsud` on 16 × 64-byte tiles | 16,384 |
 //!
 //! `vpdpbusd` multiplies *unsigned* bytes by signed bytes. Both operands are signed here, so the
 //! VNNI kernels feed the weights as `w + 128` (an XOR with `0x80`) and subtract `128 · Σ x`,

@@ -14,7 +14,11 @@
 //! 2^32.
 //!
 //! The `asm!` blocks declare the tiles they write (`tmm` clobbers); the tiles hold their values
-//! from one block to the next because nothing between them calls out or touches tiles.
+//! from one block to the next because nothing between them calls out or touches tiles (no
+//! function call in the chunk loop: the pooled epilogue that runs there is inlined and fills
+//! its vectors without `memcpy`; the disassembly shows no `call` between the blocks). Rust's
+//! inline-assembly rules do not promise registers an `asm!` block does not name, so this rests
+//! on the compiler never touching tile registers itself, which it cannot: it has no tile types.
 //!
 //! Registers, per block of up to 32 points:
 //!
@@ -317,9 +321,20 @@ impl Epilogue for Pool<'_> {
         cols: usize,
     ) {
         // The slice's bias and scales as whole vectors (columns past `cols`: 0, and ignored).
+        // A fixed-trip loop of selects, not `copy_from_slice`: that became two `memcpy`
+        // calls, and this runs between tile instructions while tiles hold live sums (which a
+        // call may clobber under the x86-64 psABI; see the module docs).
         let (mut bias, mut scales) = ([0i32; SLICE], [0f32; SLICE]);
-        bias[..cols].copy_from_slice(&self.bias[c0..][..cols]);
-        scales[..cols].copy_from_slice(&self.requant.scales[c0..][..cols]);
+        let (b, s) = (
+            self.bias.get(c0..).unwrap_or_default(),
+            self.requant.scales.get(c0..).unwrap_or_default(),
+        );
+        for j in 0..SLICE {
+            if j < cols {
+                bias[j] = b.get(j).copied().unwrap_or(0);
+                scales[j] = s.get(j).copied().unwrap_or(0.0);
+            }
+        }
         let alpha = self.requant.leaky.unwrap_or(1.0);
         let (mut mx, mut sm) = ([-128i32; SLICE], [0i32; SLICE]);
         for i in rows {
