@@ -811,6 +811,26 @@ fn triangulate_pairs_pose_windows_from_two_cameras() {
             );
         }
     }
+    // Two one-camera recordings' poses both say camera 0: refused without --cameras (with
+    // the hint), and with it the same joints as the files that name their cameras.
+    let (pa0, pb0) = (
+        write("cam2-only.jsonl", &a, 0, 0),
+        write("cam3-only.jsonl", &b, 0, -1),
+    );
+    let err = evpose_err(&["triangulate", s(&pa0), s(&pb0)]);
+    assert!(
+        err.contains("both pose files are of camera 0") && err.contains("--cameras A,B"),
+        "{err}"
+    );
+    let named = evpose(&[
+        "triangulate",
+        s(&pa0),
+        s(&pb0),
+        "--cameras",
+        "2,3",
+        "--json",
+    ]);
+    assert_eq!(named, out);
     // Text output: one line per window; the default cameras are the front pair, 2 and 3.
     let text = evpose(&["triangulate", s(&pa), s(&pb), "--cameras", "2,3"]);
     assert_eq!(text.lines().count(), 2, "{text}");

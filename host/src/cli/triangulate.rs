@@ -33,7 +33,8 @@ pub struct TriangulateArgs {
     pub joints_b: Option<String>,
     /// DHP19 camera channels (aedat channel ids, 0–3) of the two views, `A,B` (default: the
     /// cameras the pose files record, else DHP19's front pair, its evaluation pair). Pose files
-    /// of other cameras than these are refused.
+    /// of other cameras than these are refused, but for two files of the same camera (the
+    /// outputs of two one-camera recordings, both camera 0), which need this option.
     #[arg(long, value_delimiter = ',')]
     pub cameras: Option<Vec<u8>>,
     /// Directory with DHP19's `P1..P4.npy` and `camera_positions.npy` (default: the
@@ -69,13 +70,22 @@ pub fn triangulate(a: &TriangulateArgs) -> Result<()> {
     let files = recorded(&views_a)
         .zip(recorded(&views_b))
         .map(|(x, y)| vec![x, y]);
+    // Both files of one camera id are one-camera recordings (whose poses record camera 0):
+    // only --cameras can say which DHP19 cameras saw them.
+    let same = files.as_ref().is_some_and(|f| f[0] == f[1]);
     let cameras = match (&a.cameras, files) {
+        (Some(given), Some(_)) if same => given.clone(),
         (Some(given), Some(files)) if *given != files => bail!(
             "--cameras {} but the pose files are of cameras {} (in the order given)",
             join(given),
             join(&files)
         ),
         (Some(given), _) => given.clone(),
+        (None, Some(files)) if same => bail!(
+            "both pose files are of camera {} (as the poses of one-camera recordings are): \
+             name the DHP19 cameras that recorded them with --cameras A,B (e.g. --cameras 2,3)",
+            files[0]
+        ),
         (None, Some(files)) => files,
         (None, None) => dhp19::FRONT_CHANNELS.to_vec(),
     };
