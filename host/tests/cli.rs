@@ -28,6 +28,27 @@ fn evpose_err(args: &[&str]) -> String {
     String::from_utf8(out.stderr).unwrap()
 }
 
+#[test]
+fn a_reader_that_closes_the_pipe_ends_evpose_quietly() {
+    use std::io::{BufRead, BufReader};
+    // `evpose run -v | head -1`: the reader takes a line and goes while evpose still prints.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_evpose"))
+        .args(["run", "-v"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run evpose");
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    assert!(!first.is_empty());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{:?}: {stderr}", out.status);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
 fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../tests/fixtures")

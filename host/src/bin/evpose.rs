@@ -6,5 +6,6 @@ use clap::Parser;
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 fn main() -> anyhow::Result<()> {
+    evpose_host::cli::quiet_broken_pipe();
     evpose_host::cli::run(evpose_host::cli::Cli::parse())
 }

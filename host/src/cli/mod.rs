@@ -203,6 +203,26 @@ pub struct BenchRasterArgs {
     pub input: InputArgs,
 }
 
+/// Ends the program quietly, with status 0, when its standard output or error is a pipe whose
+/// reader has gone (`evpose info F | head -1`), as Unix tools do; `println!` otherwise panics
+/// ("failed printing to stdout: Broken pipe") and exits with 101. Any other panic keeps the
+/// default report. For a binary's `main`, before anything is printed.
+pub fn quiet_broken_pipe() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let payload = info.payload();
+        let msg = payload
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| payload.downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if msg.starts_with("failed printing to std") && msg.contains("Broken pipe") {
+            std::process::exit(0);
+        }
+        default(info);
+    }));
+}
+
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
