@@ -89,7 +89,11 @@ pub fn ground_truth_frame(
         bail!("camera {camera}: DHP19's cameras are 0 to 3");
     }
     use crate::dataset::{self, DatasetOptions, LabelRule, SplitFilter, MEAN_WINDOW_EVENTS};
-    let dir = events_file.parent().unwrap_or(std::path::Path::new("."));
+    // A bare file name's parent is "": its directory is the current one.
+    let dir = events_file
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
     let source = dataset::sources(dir)?
         .into_iter()
         .find(|s| s.events.file_name() == events_file.file_name())
@@ -216,8 +220,11 @@ pub fn bar_chart(title: &str, labels: &[&str], panels: &[Panel<'_>]) -> Result<R
 
 /// Where the frames of a run go.
 enum FrameSink {
-    /// One animated GIF.
-    Gif(Box<image::codecs::gif::GifEncoder<std::io::BufWriter<std::fs::File>>>),
+    /// One animated GIF, and its path.
+    Gif(
+        Box<image::codecs::gif::GifEncoder<std::io::BufWriter<std::fs::File>>>,
+        std::path::PathBuf,
+    ),
     /// Numbered PNG files: the path with `-000`, `-001`, … before the extension.
     Png(std::path::PathBuf),
 }
@@ -268,7 +275,7 @@ impl RunRenderer {
                     10,
                 );
                 enc.set_repeat(image::codecs::gif::Repeat::Infinite)?;
-                FrameSink::Gif(Box::new(enc))
+                FrameSink::Gif(Box::new(enc), path.to_path_buf())
             }
             Some("png") => {
                 // The frames are written as the run goes: a missing directory is an error now,
@@ -302,6 +309,23 @@ impl RunRenderer {
     /// Frames written.
     pub fn frames(&self) -> usize {
         self.frames
+    }
+
+    /// What was written, for a message: the GIF's path, or the first and last PNG frame's
+    /// (`f-000.png … f-011.png` for `--render f.png`).
+    pub fn written(&self) -> String {
+        match &self.sink {
+            FrameSink::Gif(_, path) => path.display().to_string(),
+            FrameSink::Png(path) => match self.frames {
+                0 => path.display().to_string(),
+                1 => png_frame(path, 0).display().to_string(),
+                n => format!(
+                    "{} … {}",
+                    png_frame(path, 0).display(),
+                    png_frame(path, n - 1).display()
+                ),
+            },
+        }
     }
 
     /// Draws one window's frame and writes it.
@@ -442,17 +466,13 @@ impl RunRenderer {
 
     fn write(&mut self, img: RgbImage) -> Result<()> {
         match &mut self.sink {
-            FrameSink::Gif(enc) => {
+            FrameSink::Gif(enc, _) => {
                 let rgba = image::DynamicImage::ImageRgb8(img).into_rgba8();
                 let delay = image::Delay::from_numer_denom_ms(GIF_FRAME_MS, 1);
                 enc.encode_frame(image::Frame::from_parts(rgba, 0, 0, delay))
                     .context("writing the GIF")?;
             }
-            FrameSink::Png(path) => {
-                let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("frame");
-                let name = path.with_file_name(format!("{stem}-{:03}.png", self.frames));
-                save(&img, &name)?;
-            }
+            FrameSink::Png(path) => save(&img, &png_frame(path, self.frames))?,
         }
         self.frames += 1;
         Ok(())
@@ -462,4 +482,10 @@ impl RunRenderer {
 /// Joints as the fixed-size array the drawing takes (missing joints at 0).
 fn joints_array(joints: &[[f32; 2]]) -> [[f32; 2]; JOINTS] {
     std::array::from_fn(|j| joints.get(j).copied().unwrap_or_default())
+}
+
+/// PNG frame `i` of `--render F.png`: `F-000.png`, `F-001.png`, … beside `F.png`.
+fn png_frame(path: &std::path::Path, i: usize) -> std::path::PathBuf {
+    let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("frame");
+    path.with_file_name(format!("{stem}-{i:03}.png"))
 }

@@ -221,10 +221,10 @@ pub fn parse_movements(list: &str) -> Result<Vec<Movement>> {
     let list: Vec<Movement> = list
         .split(',')
         .map(|m| {
-            m.trim().parse::<Movement>().map_err(|e| {
-                let names: Vec<&str> = Movement::ALL.iter().map(|m| m.name()).collect();
-                anyhow::anyhow!("{e}; movements: all, {}", names.join(", "))
-            })
+            // The error lists the movements; `all` is the one other word.
+            m.trim()
+                .parse::<Movement>()
+                .map_err(|e| anyhow::anyhow!("{e} (or all)"))
         })
         .collect::<Result<_>>()?;
     // Each movement is one file per subject: listed twice, two jobs would write it at once.

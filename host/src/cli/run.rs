@@ -244,7 +244,7 @@ pub fn run(a: &RunArgs) -> Result<()> {
         print_summary(&summary, d.synthetic);
     }
     if let (Some(path), Some(r)) = (&a.render, renderer) {
-        let frames = r.frames();
+        let (frames, written) = (r.frames(), r.written());
         drop(r); // closes the GIF
         if frames == 0 {
             // A GIF without frames is not a valid file (and PNG frames were never written).
@@ -254,7 +254,7 @@ pub fn run(a: &RunArgs) -> Result<()> {
             }
             eprintln!("no windows: {} not written", path.display());
         } else {
-            eprintln!("wrote {} ({frames} frames)", path.display());
+            eprintln!("wrote {written} ({frames} frames)");
         }
     }
     for p in &a.out {
