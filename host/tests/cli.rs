@@ -1317,3 +1317,20 @@ fn convert_raster_and_info_on_odd_input() {
     ]);
     assert!(err.contains("0 is not in 1.."), "{err}");
 }
+
+#[test]
+fn ground_truth_of_another_recording_is_warned_about() {
+    let street = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/aedat4/davis346-street-head.aedat4");
+    let gt = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/clip/S4242-00_side-kick.gt.npy");
+    let out = Command::new(env!("CARGO_BIN_EXE_evpose"))
+        .args(["run", "--events", s(&street), "--gt", s(&gt)])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("warning: the ground truth covers none of the"),
+        "{stderr}"
+    );
+}

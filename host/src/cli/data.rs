@@ -30,8 +30,8 @@ pub struct DatasetArgs {
     /// Points per sample.
     #[arg(long, default_value_t = evpose_core::pipeline::DEFAULT_POINTS)]
     pub points: usize,
-    /// Camera channels (DHP19's front pair by default).
-    #[arg(long, value_delimiter = ',', default_values_t = dhp19::FRONT_CHANNELS)]
+    /// Camera channels, comma-separated (DHP19's front pair by default).
+    #[arg(long, value_delimiter = ',', default_value = "2,3")]
     pub cameras: Vec<u8>,
     /// Recordings of which subjects: `train` drops windows under 1,024 points, as the paper.
     #[arg(long, value_enum, default_value_t = SplitFilter::All)]
@@ -113,12 +113,13 @@ pub enum EvalEngine {
 
 /// Arguments of `evpose eval` (stable: scripts call them).
 #[derive(Args, Debug)]
+#[command(group(clap::ArgGroup::new("predictor").required(true).args(["model", "baseline"])))]
 pub struct EvalArgs {
     /// The dataset (`evpose dataset --out`).
     #[arg(long)]
     pub data: PathBuf,
     /// The model: `.onnx` (tract, f32) or `.evq` (i8, f32).
-    #[arg(long, required_unless_present = "baseline")]
+    #[arg(long)]
     pub model: Option<PathBuf>,
     /// Engine (default: i8 for an `.evq`, f32 otherwise).
     #[arg(long, value_enum, conflicts_with = "baseline")]
@@ -385,5 +386,39 @@ fn print_report(r: &EvalReport) {
             fmt(s.mpjpe3d_weighted_mm),
             gain(r.mpjpe3d_weighted_mm, s.mpjpe3d_weighted_mm)
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::super::{Cli, Command};
+    use crate::dhp19;
+
+    #[test]
+    fn dataset_cameras_default_to_the_front_pair() {
+        let cli =
+            Cli::try_parse_from(["evpose", "dataset", "--recordings", "r", "--out", "o"]).unwrap();
+        let Command::Dataset(a) = cli.command else {
+            panic!("not dataset");
+        };
+        assert_eq!(a.cameras, dhp19::FRONT_CHANNELS);
+        // Given the way the help shows the default.
+        let cli = Cli::try_parse_from([
+            "evpose",
+            "dataset",
+            "--recordings",
+            "r",
+            "--out",
+            "o",
+            "--cameras",
+            "2,3",
+        ])
+        .unwrap();
+        let Command::Dataset(b) = cli.command else {
+            panic!("not dataset");
+        };
+        assert_eq!(b.cameras, a.cameras);
     }
 }

@@ -35,7 +35,8 @@ pub struct Cli {
 pub enum Command {
     /// Describe a recording: format, resolution, event counts, time span.
     Info(InfoArgs),
-    /// Convert a recording to an (N, 4) float64 `.npy` array [x, y, t_us, p].
+    /// Convert a recording to an (N, 4) float64 `.npy` array [x, y, t_us, p] (one camera) or
+    /// to AEDAT 4 (`.aedat4`, every camera).
     Convert(ConvertArgs),
     /// Rasterize events into event point clouds [x, y, t_avg, p_acc, cnt] (float32 .npy).
     Raster(RasterArgs),

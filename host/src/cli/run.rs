@@ -352,6 +352,13 @@ fn print_summary(s: &RunSummary, synthetic: bool) {
             f(e.mpjpe3d_mm, "mm"),
             f(e.mpjpe3d_raw_mm, "mm"),
         );
+        if e.windows == 0 && s.windows > 0 {
+            eprintln!(
+                "warning: the ground truth covers none of the {} windows (another recording's, \
+                 or another time base?)",
+                s.windows
+            );
+        }
     }
     if s.no_body() {
         println!(

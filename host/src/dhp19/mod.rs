@@ -51,7 +51,13 @@ const BUNDLED: [(&str, &[u8]); 5] = [
 pub fn camera(dir: &Path, channel: u8) -> Result<Camera> {
     camera_from(channel, |file| {
         let path = dir.join(file);
-        let (shape, data) = array::read_f64(&path)?;
+        let (shape, data) = array::read_f64(&path).with_context(|| {
+            format!(
+                "calibration directory {}: it needs DHP19's P1.npy .. P4.npy and \
+                 camera_positions.npy (the bundled ones are used without --calibration)",
+                dir.display()
+            )
+        })?;
         Ok((path.display().to_string(), shape, data))
     })
 }

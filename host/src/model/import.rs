@@ -74,6 +74,7 @@ struct Importer {
 
 /// Imports an ONNX export of the paper's network family.
 pub fn import_onnx(path: &Path) -> Result<FloatNet> {
+    super::refuse_blob(path)?;
     let model = tract_onnx::onnx()
         .model_for_path(path)
         .map_err(|e| anyhow!("{}: cannot load ONNX model: {e:?}", path.display()))?;
@@ -100,7 +101,8 @@ pub fn import_onnx(path: &Path) -> Result<FloatNet> {
     .run(&typed)
     .with_context(|| {
         format!(
-            "{}: not a PointNet-SimDR model of the supported family",
+            "{}: not a PointNet-SimDR model of the family the core imports (tract runs any \
+             ONNX export: --engine tract)",
             path.display()
         )
     })?;

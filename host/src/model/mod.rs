@@ -238,6 +238,25 @@ pub fn run_core_i8_with(
     CoreRunner::with_kernels(blob, k)?.run_i8(points)
 }
 
+/// Refuses an evpose blob where an ONNX export is wanted (tract, ONNX import), with what to
+/// do instead: tract's own error would be a protobuf decoding failure.
+#[cfg(feature = "onnx")]
+fn refuse_blob(path: &Path) -> Result<()> {
+    use std::io::Read as _;
+    let mut head = [0u8; 4];
+    let is_blob = std::fs::File::open(path)
+        .and_then(|mut f| f.read_exact(&mut head))
+        .is_ok_and(|()| head == evpose_core::model::MAGIC);
+    if is_blob {
+        bail!(
+            "{} is an evpose model blob (.evq), not an ONNX export: tract and ONNX import need \
+             the .onnx; run a blob with the core's engine (--engine i8, or f32 for an f32 blob)",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
 /// Loads a model file: an ONNX export is imported into an f32 blob; a blob is read as is and
 /// validated where it is parsed ([`CoreRunner::new`], `Model::parse`), once: its CRC covers
 /// the whole file.

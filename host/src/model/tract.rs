@@ -135,6 +135,7 @@ fn values<T: Datum + Copy>(t: &TValue) -> Result<Vec<T>> {
 }
 
 fn load_inference(path: &Path) -> Result<InferenceModel> {
+    super::refuse_blob(path)?;
     tract_onnx::onnx()
         .model_for_path(path)
         .map_err(|e| anyhow!("{}: cannot load ONNX model: {e:?}", path.display()))
