@@ -167,6 +167,16 @@ pub enum DType {
     I8 = 1,
 }
 
+impl fmt::Display for DType {
+    /// `f32` or `int8`.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::F32 => "f32",
+            Self::I8 => "int8",
+        })
+    }
+}
+
 /// Role of a layer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

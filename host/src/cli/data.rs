@@ -10,6 +10,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::dataset::{self, Dataset, DatasetOptions, LabelRule, SplitFilter};
 use crate::eval::{self, EvalReport};
+use crate::run::setup::EngineKind;
 use crate::{dhp19, model};
 use evpose_core::smooth::{LagParams, SmoothParams};
 
@@ -100,17 +101,6 @@ pub fn dataset(a: &DatasetArgs) -> Result<()> {
     Ok(())
 }
 
-/// Inference engines for `evpose eval`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum EvalEngine {
-    /// tract running the `.onnx` (any backbone of the family).
-    Tract,
-    /// The core's f32 engine (an `.onnx` imported, or an f32 blob).
-    F32,
-    /// The core's int8 engine on an `.evq` blob.
-    I8,
-}
-
 /// Arguments of `evpose eval` (stable: scripts call them).
 #[derive(Args, Debug)]
 #[command(group(clap::ArgGroup::new("predictor").required(true).args(["model", "baseline"])))]
@@ -123,7 +113,7 @@ pub struct EvalArgs {
     pub model: Option<PathBuf>,
     /// Engine (default: i8 for an `.evq`, f32 otherwise).
     #[arg(long, value_enum, conflicts_with = "baseline")]
-    pub engine: Option<EvalEngine>,
+    pub engine: Option<EngineKind>,
     /// Instead of a model: predict the mean pose of this training dataset (a sanity check).
     #[arg(long, conflicts_with = "model")]
     pub baseline: Option<PathBuf>,
@@ -215,26 +205,26 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
         (None, Some(path)) => {
             let is_onnx = path.extension().is_some_and(|e| e == "onnx");
             let engine = a.engine.unwrap_or(if is_onnx {
-                EvalEngine::F32
+                EngineKind::F32
             } else {
-                EvalEngine::I8
+                EngineKind::I8
             });
             let progress = |n: usize| bar.set_position(n as u64);
             let p = match engine {
-                EvalEngine::Tract => tract(&ds, path, progress)?,
-                EvalEngine::F32 | EvalEngine::I8 => {
+                EngineKind::Tract => tract(&ds, path, progress)?,
+                EngineKind::F32 | EngineKind::I8 => {
                     let blob = model::load_blob(path)?;
                     let dtype = evpose_core::Model::parse(blob.bytes())
                         .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
                         .dtype();
-                    let want = if engine == EvalEngine::I8 {
+                    let want = if engine == EngineKind::I8 {
                         evpose_core::DType::I8
                     } else {
                         evpose_core::DType::F32
                     };
                     if dtype != want {
                         bail!(
-                            "{}: a {dtype:?} model, not for --engine {engine:?}",
+                            "{}: an {dtype} model, not for --engine {engine}",
                             path.display()
                         );
                     }
@@ -242,7 +232,7 @@ pub fn eval(a: &EvalArgs) -> Result<()> {
                     eval::predict_core(&ds, &blob, progress)?
                 }
             };
-            (p, format!("{} ({engine:?})", path.display()))
+            (p, format!("{} (engine {engine})", path.display()))
         }
         (None, None) => bail!("give --model or --baseline"),
     };

@@ -168,7 +168,7 @@ pub fn run(a: &RunArgs) -> Result<()> {
     let d = plan.description.clone();
     if !a.json {
         eprintln!(
-            "{}\n  model {} ({:?} engine, {} points), windows of {}{}\n  temporal filter: {}",
+            "{}\n  model {} (engine {}, {} points), windows of {}{}\n  temporal filter: {}",
             d.events,
             d.model,
             d.engine,
@@ -415,7 +415,7 @@ pub fn bench_pipeline(a: &BenchPipelineArgs) -> Result<()> {
     }
     println!("cpu: {}", b.cpu);
     println!(
-        "{}: {} events, {} windows x {} camera(s) per pass; model {} ({:?}, {} points)",
+        "{}: {} events, {} windows x {} camera(s) per pass; model {} (engine {}, {} points)",
         b.run.events, b.events, b.windows, b.cameras, b.run.model, b.run.engine, b.run.points
     );
     println!(

@@ -29,6 +29,17 @@ pub enum EngineKind {
     I8,
 }
 
+impl std::fmt::Display for EngineKind {
+    /// The name `--engine` takes: `tract`, `f32` or `i8`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Tract => "tract",
+            Self::F32 => "f32",
+            Self::I8 => "i8",
+        })
+    }
+}
+
 /// What to run, as asked (every `None` takes the default).
 #[derive(Clone, Debug, Default)]
 pub struct Request {
@@ -188,7 +199,7 @@ impl Plan {
                 };
                 if m.dtype() != dtype {
                     bail!(
-                        "{name} is an {:?} model; --engine {} needs {}",
+                        "{name} is an {} model; --engine {} needs {}",
                         m.dtype(),
                         if dtype == DType::I8 { "i8" } else { "f32" },
                         if dtype == DType::I8 {
