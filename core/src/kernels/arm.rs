@@ -27,7 +27,7 @@
 //! opts in (thumbv6m, thumbv7m and thumbv8m.base lack it). Everywhere else they are emulated in
 //! Rust, bit for bit as the Armv7-M manual defines them, so the kernel's blocking, tails and
 //! wrapping are tested on any host against the reference (`core/tests/kernels.rs`) and the
-//! instructions themselves on a Cortex-M7 under QEMU (the firmware's boot self-test, asserted
+//! instructions themselves on a Cortex-M7 and a Cortex-M4 under QEMU (the firmware's boot self-test, asserted
 //! by `tests/firmware_qemu.rs`).
 //!
 //! `SMLAD` adds exactly (the Q flag it may set does not change the result), so the sums wrap
@@ -783,11 +783,13 @@ fn matmat_blocks<R: BlockRows>(
     // Both products are below the slice lengths when a block exists (`matmat_dims`), and
     // non-zero (`k ≥ 1`; `rows ≥ 1` implies `out_stride ≥ 1`). Without a block they may
     // overflow (one point and an `out_stride` of `usize::MAX`): then only the tail runs.
-    if let (true, Some(xk), Some(os)) = (
-        blocks > 0,
-        k.checked_mul(BLOCK_POINTS).filter(|&v| v > 0),
-        out_stride.checked_mul(BLOCK_POINTS).filter(|&v| v > 0),
-    ) {
+    if blocks > 0 {
+        let (Some(xk), Some(os)) = (
+            k.checked_mul(BLOCK_POINTS).filter(|&v| v > 0),
+            out_stride.checked_mul(BLOCK_POINTS).filter(|&v| v > 0),
+        ) else {
+            return;
+        };
         for (xb, ob) in x.chunks_exact(xk).zip(out.chunks_mut(os)).take(blocks) {
             let mut k0 = 0;
             while k0 < k {
