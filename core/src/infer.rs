@@ -2,7 +2,7 @@
 //! ([`Plan`]) and run many times.
 //!
 //! Points go through all point layers in blocks (as many points as the lent scratch holds, up
-//! to [`MAX_BLOCK`]; one on an MCU), and the last point layer is reduced on the fly into a
+//! to [`MAX_BLOCK`]; four on the Cortex-M firmware, `kernels::arm::BLOCK_POINTS`), and the last point layer is reduced on the fly into a
 //! running max and a running sum, so activation memory is O(block × layer widths), never
 //! O(points × widths). The caller lends the scratch memory; the model says how much it needs
 //! ([`scratch_words`], [`scratch_words_for_block`]); too little is an error, not a panic.

@@ -3,7 +3,7 @@
 //! Reference behaviour (paper, Sec. 3.2): when `M ≥ N`, `N` distinct indices drawn uniformly
 //! without replacement; when `M < N`, `N` indices drawn with replacement; indices ascending, so
 //! the points keep their (slice, y, x) order. `N = 0` keeps all points; an empty window gives `N`
-//! all-zero points.
+//! all-zero points (one when `N = 0`: [`sample_len`]).
 //!
 //! The generator is PCG32 (`rand_pcg::Pcg32`, seeded with `seed_from_u64`); the mapping from its
 //! `u32` outputs to indices is defined here (below) and is part of the contract, so a host and a

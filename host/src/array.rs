@@ -1,4 +1,5 @@
-//! NumPy `.npy` array files: read any numeric array as f64, stream it, write f32/f64/i32 arrays.
+//! NumPy `.npy` array files: read any numeric array as f64, stream it, write f32/f64/i32 arrays
+//! (and append i64/u32/u16/u8 ones, [`NpyAppender`]).
 
 use std::fs::File;
 use std::io::{self, BufReader, BufWriter, Read};

@@ -11,7 +11,8 @@
 //!   reservation `_stack_start - _stack_end` (symbols of cortex-m-rt, set in `memory.x`);
 //! - heap: any section named like a heap, or a global allocator's symbols (`__rust_alloc`, …).
 //!
-//! The ELF is read by hand (32-bit little-endian, section headers and the symbol table only).
+//! The ELF is read by hand (32-bit little-endian: section headers, the symbol table, and the
+//! code's Thumb-2 `BL`/`B.W` instructions, decoded to find the panic paths).
 
 use std::path::{Path, PathBuf};
 

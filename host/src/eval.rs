@@ -5,7 +5,9 @@
 //!   samples (masked joints excluded), as the paper's code computes it.
 //! - **MPJPE3D** (mm): the predictions of the two front cameras (channels 2 and 3) for the same
 //!   window are triangulated with DHP19's calibration ([`evpose_core::geometry`]) and compared
-//!   with the window's 3-D label, averaged over the joints of all such windows.
+//!   with the window's 3-D label, averaged over the joints of all such windows (`--label mean`
+//!   datasets only: a `--label last` dataset's samples of one window are no pair, and get no
+//!   3-D figure).
 //!
 //! Both also per camera, per movement and per joint. Synthetic-data figures are not DHP19
 //! figures; the report says which data it measured.

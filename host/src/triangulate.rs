@@ -5,7 +5,8 @@
 //! or from two explicit lists. Each camera's windows are cut from its own events, so window `i`
 //! of one camera need not cover the same time as window `i` of the other: each window of the
 //! first file is paired with the window of the second whose time span overlaps it most (by
-//! position with `--by-position`, or when a window has no `t_us`: an empty window's is null). Pixels are taken as DHP19's `(u, v)` (column, row
+//! position with `--by-position`, and for explicit `--joints-a`/`--joints-b` lists, which carry
+//! no times). Pixels are taken as DHP19's `(u, v)` (column, row
 //! from the top-left), as the reference evaluation takes its decoded joints; each joint pair is
 //! triangulated with [`evpose_core::geometry::triangulate`].
 

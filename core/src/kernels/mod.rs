@@ -44,9 +44,8 @@
 //!
 //! Every kernel processes exactly the rows the reference does (see [`rows`]): with `K = x.len()`,
 //! `min(out.len(), bias.len(), w.len() / K)` rows, leaving the rest of `out` untouched. The
-//! dot products are exact modulo 2^32, which is what the reference's `+` gives in a release
-//! build (a debug build panics on overflow instead). `K = 0` gives `out[o] = bias[o]`
-//! (the reference itself panics there: `chunks_exact(0)`).
+//! dot products are exact modulo 2^32, which is what the reference's wrapping sums give in
+//! every build (`wrapping_add`). `K = 0` gives `out[o] = bias[o]`, in the reference too.
 //!
 //! [`matmat_i8`] is [`reference::matmat_i8`]: the reference matvec once per point, on the
 //! `points × rows` rectangle of [`matmat_dims`] (see [`MatmatI8`]). The x86 kernels compute it

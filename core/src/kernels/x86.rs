@@ -2,8 +2,7 @@
 //!
 //! Every kernel here returns the same integers as [`super::reference`], for any slice lengths:
 //! it processes the same rows (see [`super::rows`]) and computes each dot product modulo 2^32,
-//! the same residue the reference's `+` gives (wrapping in release builds; a debug build of the
-//! reference panics instead, which needs sums no real layer produces).
+//! the same residue the reference's wrapping sums give, in every build.
 //!
 //! | kernel | int8 inner step | MACs per instruction |
 //! |---|---|---|

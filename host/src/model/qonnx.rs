@@ -8,7 +8,8 @@
 //! - pooling: `ReduceMax` over int8; `ReduceSum` over int32, then `Mul(Cast(sum), Div(c, n))`
 //!   with `n` read from the input's shape, then `QuantizeLinear(1, 0)`;
 //! - FC layers: `MatMulInteger` + the same requantization; heads: `MatMulInteger` + `Add`,
-//!   int32 outputs.
+//!   int32 outputs; 15-bit heads (the quantizer's default) as two `MatMulInteger`s over the
+//!   weights' high and low parts, combined as `128·hi + lo`.
 
 use anyhow::Result;
 use prost::Message;
