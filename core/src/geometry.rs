@@ -15,6 +15,11 @@
 //!   `Σᵢ (I − nᵢnᵢᵀ) p = Σᵢ (I − nᵢnᵢᵀ) cᵢ` (`cᵢ` a ray's origin, `nᵢ` its unit direction); for two
 //!   rays it is the midpoint of their closest approach ([`triangulate`], [`triangulate_joints`]).
 //!
+//! DHP19's calibration: aedat camera channel 0 is `P4.npy`, 1 is `P1`, 2 is `P3`, 3 is `P2`
+//! (centres in rows 3, 0, 2, 1 of `camera_positions.npy`); `evpose_host::dhp19` reads them, and
+//! the host binary bundles them (`assets/dhp19`). An MCU builds its [`Camera`]s from those
+//! twelve numbers and three centre coordinates each.
+//!
 //! `P⁺` is computed once, by SVD, in [`Camera::new`]. Everything is `f64`; nothing allocates,
 //! and bad input (NaN, a rank-deficient `P`, a back-projected point at infinity, parallel rays)
 //! is a [`GeometryError`], never a panic or a NaN result.

@@ -53,8 +53,10 @@ pub enum InferError {
     PackedModel,
     /// The packed weights are not in the buffer they were packed into.
     PackedBuffer,
-    /// An output buffer has the wrong length.
+    /// An output buffer has the wrong length (each must be exactly its head's size).
     Output {
+        /// Which head's buffer: `"x"` (`J × W`) or `"y"` (`J × H`).
+        head: &'static str,
         /// Values needed (`J × W` or `J × H`).
         needed: usize,
         /// Values lent.
@@ -85,8 +87,11 @@ impl fmt::Display for InferError {
                     "the packed weights are not in the buffer they were packed into"
                 )
             }
-            Self::Output { needed, got } => {
-                write!(f, "output needs {needed} values, got {got}")
+            Self::Output { head, needed, got } => {
+                write!(
+                    f,
+                    "head output {head} needs exactly {needed} values, got {got}"
+                )
             }
         }
     }
@@ -144,7 +149,8 @@ fn fc_values(model: &Model<'_>) -> usize {
     (2 * pooled).max(model.widest_fc()) + model.widest_fc()
 }
 
-/// Scratch words that, lent beyond what a plan needs ([`Plan::scratch_words`]), let the int8
+/// Scratch words that, lent beyond what a plan needs ([`Plan::scratch_words`]: make the
+/// workspace's scratch `plan.scratch_words() + ALIGN_WORDS` long, after planning), let the int8
 /// engine start its activation rows at a 64-byte boundary whatever the scratch's own
 /// alignment: then a row of 64 activations is one cache line, not two. The x86 AMX kernel
 /// reads its input tiles straight from those rows, and tile loads of rows that straddle lines
@@ -451,10 +457,18 @@ impl<'m> Plan<'m> {
         }
         let (nx, ny) = (self.out_x_len(), self.out_y_len());
         if x != nx {
-            return Err(InferError::Output { needed: nx, got: x });
+            return Err(InferError::Output {
+                head: "x",
+                needed: nx,
+                got: x,
+            });
         }
         if y != ny {
-            return Err(InferError::Output { needed: ny, got: y });
+            return Err(InferError::Output {
+                head: "y",
+                needed: ny,
+                got: y,
+            });
         }
         if scratch < self.scratch {
             return Err(InferError::Scratch {

@@ -20,7 +20,7 @@
 //! | temporal filter | [`smooth`] | joints over windows: confidence-gated One-Euro (causal) or a confidence-weighted fixed-lag mean |
 //! | per window | [`pipeline`] | one window of events in, one estimate out: the loop every pipeline runs |
 //! | skeleton | [`skeleton`] | DHP19's 13 joints: order, names, lines |
-//! | triangulation | `geometry` | projection and two-view triangulation of joints to 3-D (feature `geometry`) |
+//! | triangulation | `geometry` | projection and two-view triangulation of joints to 3-D (feature `geometry`; its docs: `cargo doc -p evpose-core --features geometry`) |
 //!
 //! Bad input never panics: it yields a typed error or a counted drop.
 //!

@@ -361,7 +361,23 @@ fn u32_at(b: &[u8], o: usize) -> u32 {
 }
 
 impl<'a> Model<'a> {
-    /// Validates a blob. The blob must start at a 16-byte-aligned address.
+    /// Validates a blob. The blob must start at a 16-byte-aligned address ([`ALIGN`]: its
+    /// arrays are read in place; else [`ModelError::Misaligned`]). Embedded in flash, wrap it
+    /// in a type of that alignment:
+    ///
+    /// ```
+    /// # use evpose_core::Model;
+    /// #[repr(C, align(16))]
+    /// struct Aligned<T: ?Sized>(T);
+    /// # const BYTES: [u8; 4] = *b"EVPQ";
+    /// static BLOB: &Aligned<[u8]> = &Aligned(BYTES); // BYTES: `*include_bytes!("model.evq")`
+    /// let parsed = Model::parse(&BLOB.0);
+    /// # assert!(parsed.is_err()); // four bytes are no blob
+    /// ```
+    ///
+    /// Read at run time (a host, or an MCU loading from external storage), copy it into
+    /// 16-byte-aligned memory first: a buffer of that `Aligned` type, or on a host
+    /// `evpose_host::model::AlignedBlob`.
     pub fn parse(blob: &'a [u8]) -> Result<Self, ModelError> {
         // The fixed header as an array: its reads below need no bounds checks.
         let Some(head) = blob.first_chunk::<HEADER_LEN>() else {

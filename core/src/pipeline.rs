@@ -19,14 +19,20 @@
 //! the firmware to print and the host to compare.
 //!
 //! ```
-//! use evpose_core::pipeline::{Estimator, Session, Workspace, DEFAULT_POINTS, I8};
+//! use evpose_core::pipeline::{Estimator, Session, Workspace, I8};
 //! use evpose_core::{kernels::Kernels, Davis346Storage, Event, Model, Plan, RasterConfig, Rasterizer};
 //! # fn demo(blob: &[u8]) -> Result<(), Box<dyn core::error::Error>> {
+//! // `blob` starts at a 16-byte-aligned address (see `Model::parse`).
 //! let model = Model::parse(blob)?;
-//! let plan = Plan::new(&model, Kernels::best(), evpose_core::scratch_words(&model))?;
+//! // `Kernels::best()` on an MCU (what the build guarantees); `Kernels::detect()` on a host,
+//! // whose default x86-64 build guarantees no SIMD (`best()` is then the scalar reference).
+//! let plan = Plan::new(&model, Kernels::detect(), evpose_core::scratch_words(&model))?;
+//! // The rasterization and point count the model was trained with: `model.preprocessing()`
+//! // (the bundled models: DAVIS346's 7,500-event windows in K = 4 slices, N = 256 or 2,048).
 //! let raster = Rasterizer::new(RasterConfig::DAVIS346, Davis346Storage::new())?;
-//! let mut session = Session::new(raster, Estimator::new(plan, DEFAULT_POINTS, 0));
-//! let (mut indices, mut rows) = (vec![0; DEFAULT_POINTS], vec![[0.0; 5]; DEFAULT_POINTS]);
+//! let n = model.input_points();
+//! let mut session = Session::new(raster, Estimator::new(plan, n, 0));
+//! let (mut indices, mut rows) = (vec![0; n], vec![[0.0; 5]; n]);
 //! let mut scratch = vec![0i32; plan.scratch_words()];
 //! let (mut x, mut y) = (vec![0; plan.out_x_len()], vec![0; plan.out_y_len()]);
 //! let mut joints = vec![Default::default(); model.joints()];
@@ -40,6 +46,7 @@
 //! };
 //! let events = [Event::new(10, 20, 0, true); 7_500];
 //! session.feed(&events, &mut ws, &mut (), |estimate| {
+//!     // A filter's time for this window is its last event's: `window.summary().t_max`.
 //!     assert_eq!(estimate.window.summary().events, 7_500);
 //!     Ok::<(), evpose_core::pipeline::PipelineError>(())
 //! })?;
@@ -202,11 +209,12 @@ pub struct Workspace<'w, E: Engine> {
     /// Network input rows: at least [`crate::sample::sample_len`]`(capacity, N)`: `N`, or when
     /// `N` is 0 the window's event capacity (a window has at most one point per event).
     pub rows: &'w mut [[f32; FEATURES]],
-    /// Inference scratch: [`Plan::scratch_words`].
+    /// Inference scratch: at least [`Plan::scratch_words`] (plus
+    /// [`ALIGN_WORDS`](crate::infer::ALIGN_WORDS) on a host).
     pub scratch: &'w mut [E::Value],
-    /// x head outputs, `J × W`.
+    /// x head outputs: exactly [`Plan::out_x_len`] (`J × W`).
     pub x: &'w mut [E::Value],
-    /// y head outputs, `J × H`.
+    /// y head outputs: exactly [`Plan::out_y_len`] (`J × H`).
     pub y: &'w mut [E::Value],
     /// Decoded joints: the model's `J`.
     pub joints: &'w mut [Joint2d],
@@ -252,7 +260,8 @@ pub struct Estimate<'a> {
 impl Estimate<'_> {
     /// The confidence of each joint into `out`, exactly `J` long ([`crate::confidence::joints`];
     /// another length is a [`ShapeError`]), with the model's logit scales
-    /// ([`crate::Model::head_scales`]).
+    /// ([`crate::Model::head_scales`]; `None` for an int8 blob of format version 1 or 2, which
+    /// predate them: such a blob has no confidences, re-quantize the model to get them).
     pub fn confidence(&self, scales: [f32; 2], out: &mut [f32]) -> Result<(), ShapeError> {
         let j = self.joints.len().max(1);
         match self.heads {
@@ -494,7 +503,9 @@ impl<'m, S: RasterStorage> Session<'m, S> {
     }
 
     /// Closes the open window (possibly empty: sampling then gives `N` zero points) and
-    /// estimates it. A workspace that cannot hold the estimate is refused first, as in
+    /// estimates it. At the end of a stream whose last window already closed (a whole number
+    /// of event-count windows), that is an empty window's estimate, with an index of its own:
+    /// call it only when [`Rasterizer::buffered`] (through [`Session::rasterizer`]) is not 0. A workspace that cannot hold the estimate is refused first, as in
     /// [`Session::extend`], with the window still open.
     pub fn flush<'a, E: Engine>(
         &'a mut self,

@@ -313,7 +313,9 @@ impl Kernels {
 
     /// The best kernels this build may use on any CPU it runs on, chosen from
     /// `cfg(target_feature)` (so by `-C target-cpu`/`-C target-feature`) and, on Arm, the
-    /// `arm-dsp` feature; what [`matvec_i8`], [`matvec_i16`] and [`matmat_i8`] call.
+    /// `arm-dsp` feature; what [`matvec_i8`], [`matvec_i16`] and [`matmat_i8`] call. What a
+    /// firmware wants; on a host built for plain x86-64 this is the scalar reference (the
+    /// build guarantees no SIMD extension): a host asks the CPU with [`Kernels::detect`].
     #[cfg(all(target_arch = "arm", feature = "arm-dsp"))]
     pub const fn best() -> Self {
         arm::kernels()
@@ -321,7 +323,9 @@ impl Kernels {
 
     /// The best kernels this build may use on any CPU it runs on, chosen from
     /// `cfg(target_feature)` (so by `-C target-cpu`/`-C target-feature`) and, on Arm, the
-    /// `arm-dsp` feature; what [`matvec_i8`], [`matvec_i16`] and [`matmat_i8`] call.
+    /// `arm-dsp` feature; what [`matvec_i8`], [`matvec_i16`] and [`matmat_i8`] call. What a
+    /// firmware wants; on a host built for plain x86-64 this is the scalar reference (the
+    /// build guarantees no SIMD extension): a host asks the CPU with [`Kernels::detect`].
     #[cfg(not(all(target_arch = "arm", feature = "arm-dsp")))]
     pub const fn best() -> Self {
         #[cfg(target_arch = "x86_64")]

@@ -129,6 +129,8 @@ impl core::fmt::Display for LagError {
     }
 }
 
+impl core::error::Error for LagError {}
+
 /// The fixed-lag smoother over the windows of one camera (see the [module docs](self)).
 #[derive(Debug)]
 pub struct FixedLag<'s> {
@@ -214,7 +216,8 @@ impl<'s> FixedLag<'s> {
         window.checked_rem(self.slots.len() as u64).unwrap_or(0) as usize
     }
 
-    /// Takes the window that ended at `t_us` with its `joints` and their `confidence`. Pop every
+    /// Takes the window that ended at `t_us` (its last event's time: an
+    /// [`Estimate`](crate::pipeline::Estimate)'s `window.summary().t_max`) with its `joints` and their `confidence`. Pop every
     /// ready window before the next push.
     pub fn push(
         &mut self,

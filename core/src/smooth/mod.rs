@@ -156,6 +156,8 @@ impl core::fmt::Display for StateTooSmall {
     }
 }
 
+impl core::error::Error for StateTooSmall {}
+
 /// A confidence-gated One-Euro filter over a sequence of windows of one camera.
 #[derive(Debug)]
 pub struct Smoother<'s> {
@@ -186,7 +188,8 @@ impl<'s> Smoother<'s> {
         self.last_t_us = None;
     }
 
-    /// Filters the joints of the window that ended at `t_us` with their `confidence` into
+    /// Filters the joints of the window that ended at `t_us` (its last event's time: an
+    /// [`Estimate`](crate::pipeline::Estimate)'s `window.summary().t_max`) with their `confidence` into
     /// `out[j] = [x, y]` (pixels, sub-pixel): the first `min(joints, confidence, out)` joints
     /// (give the three the same length: a shorter `confidence` or `out` leaves the rest
     /// unfiltered and unwritten).

@@ -427,6 +427,7 @@ mod tests {
                     got: ns,
                 }),
                 2 => PipelineError::Infer(InferError::Output {
+                    head: "x",
                     needed: nx + 1,
                     got: nx,
                 }),
