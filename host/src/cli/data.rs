@@ -340,23 +340,28 @@ fn print_report(r: &EvalReport) {
     for (c, m) in &r.per_camera {
         println!("  camera {c}: {} px", fmt(m.mpjpe2d_px));
     }
-    println!("  {:<16} {:>8} {:>9}", "movement", "2-D px", "3-D mm");
+    // One name column for both tables, as wide as the longest name (`arm-abduction-right`).
+    let names = r.per_movement.iter().map(|(n, _)| n.as_str());
+    let width = names
+        .chain(evpose_core::skeleton::JOINT_NAMES.iter().copied())
+        .map(str::len)
+        .max()
+        .unwrap_or(0)
+        .max(8);
+    let row = |name: &str, m: &eval::Mpjpe| {
+        println!(
+            "  {name:<width$} {:>8} {:>9}",
+            fmt(m.mpjpe2d_px),
+            fmt(m.mpjpe3d_mm)
+        )
+    };
+    println!("  {:<width$} {:>8} {:>9}", "movement", "2-D px", "3-D mm");
     for (name, m) in &r.per_movement {
-        println!(
-            "  {:<16} {:>8} {:>9}",
-            name,
-            fmt(m.mpjpe2d_px),
-            fmt(m.mpjpe3d_mm)
-        );
+        row(name, m);
     }
-    println!("  {:<16} {:>8} {:>9}", "joint", "2-D px", "3-D mm");
+    println!("  {:<width$} {:>8} {:>9}", "joint", "2-D px", "3-D mm");
     for (name, m) in evpose_core::skeleton::JOINT_NAMES.iter().zip(&r.per_joint) {
-        println!(
-            "  {:<16} {:>8} {:>9}",
-            name,
-            fmt(m.mpjpe2d_px),
-            fmt(m.mpjpe3d_mm)
-        );
+        row(name, m);
     }
     if let Some(c) = r.mean_confidence {
         println!("mean joint confidence {c:.3}");
