@@ -303,8 +303,52 @@ fn camera_without_size_or_name_round_trips() {
     let events = [(0, Event::new(1, 2, 3, true))];
     let bytes = write_file(&cameras, Compression::Lz4High, &events);
     let reader = Aedat4Reader::new(&bytes[..]).expect("header");
-    assert_eq!(reader.info().cameras, cameras);
+    // A camera without a name gets a source of its own (dv-processing needs one).
+    let named = [CameraInfo {
+        name: Some("evpose_camera0".into()),
+        ..cameras[0].clone()
+    }];
+    assert_eq!(reader.info().cameras, named);
     assert_eq!(read_all_from(reader).expect("read").events, events);
+}
+
+/// As DV writes them: every camera's stream is `events`, and the cameras differ by `source`
+/// (dv-processing looks a camera's events up by both: a stream without a source, or named
+/// otherwise, is one it cannot read through its default accessors).
+#[test]
+fn every_stream_is_events_of_a_source_of_its_own() {
+    let cameras = [
+        camera(0, 346, 260, "DAVIS346"),
+        camera(1, 346, 260, "DAVIS346"),
+        CameraInfo {
+            id: 2,
+            width: Some(346),
+            height: Some(260),
+            name: None,
+        },
+        camera(3, 346, 260, "DAVIS346_00000002"),
+    ];
+    let bytes = write_file(&cameras, Compression::None, &[]);
+    let reader = Aedat4Reader::new(&bytes[..]).expect("header");
+    let sources: Vec<String> = reader
+        .info()
+        .cameras
+        .iter()
+        .map(|c| c.name.clone().unwrap())
+        .collect();
+    assert_eq!(
+        sources,
+        [
+            "DAVIS346_camera0",
+            "DAVIS346_camera1",
+            "evpose_camera2",
+            "DAVIS346_00000002"
+        ]
+    );
+    let text = String::from_utf8_lossy(&bytes);
+    let outputs = text.matches(r#"<attr key="originalOutputName" type="string">events</attr>"#);
+    assert_eq!(outputs.count(), 4, "{text}");
+    assert!(!text.contains("events_"), "{text}");
 }
 
 #[test]

@@ -182,10 +182,12 @@ fn print_latency(
     };
     println!(
         "\nlatency per {events}-event window at {points} points, point layers over {over}, from \
-         instructions measured under QEMU (commit {}, model {}: {:.1}/event, {:.3}/point-layer \
-         MAC, {:.3}/MAC after pooling; the build for the M4, used for the M4 and M33, \
-         {:.1}, {:.3} and {:.3}); cycles = instructions x CPI (assumed):",
-        k.commit,
+         instructions measured under QEMU (firmware/measured.json, commit {}; model {}: \
+         {:.1}/event, {:.3}/point-layer MAC, {:.3}/MAC after pooling; the build for the M4, used \
+         for the M4 and M33, {:.1}, {:.3} and {:.3}); cycles = instructions x CPI (assumed):",
+        // The record's provenance note follows its commit hash: the hash is enough here
+        // (--json has the whole note).
+        k.commit.split_whitespace().next().unwrap_or("?"),
         k.model,
         k.instructions_per_event,
         point,

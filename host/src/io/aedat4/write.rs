@@ -169,6 +169,26 @@ pub(super) fn io_header(xml: &str, compression: Compression) -> Vec<u8> {
 }
 
 /// The infoNode XML declaring one `EVTS` stream per camera, in DV's layout.
+/// The `source` of camera `i`'s stream: its name where the input gave it one no other camera
+/// has, else that name (or `evpose`) with `_camera{id}`. dv-processing finds a camera's streams
+/// by source, so every stream needs one and no two cameras may share it (without a source it
+/// finds no stream at all: "does not contain any supported data streams").
+fn source_name(cameras: &[CameraInfo], i: usize) -> String {
+    let cam = &cameras[i];
+    match &cam.name {
+        Some(n)
+            if cameras
+                .iter()
+                .filter(|c| c.name.as_ref() == Some(n))
+                .count()
+                == 1 =>
+        {
+            n.clone()
+        }
+        other => format!("{}_camera{}", other.as_deref().unwrap_or("evpose"), cam.id),
+    }
+}
+
 pub(super) fn info_xml(cameras: &[CameraInfo], compression: Compression) -> String {
     const ROOT: &str = "/mainloop/Recorder/outInfo/";
     let attr = |indent: usize, key: &str, ty: &str, value: &str| {
@@ -183,12 +203,9 @@ pub(super) fn info_xml(cameras: &[CameraInfo], compression: Compression) -> Stri
         x += &format!("        <node name=\"{i}\" path=\"{ROOT}{i}/\">\n");
         x += &attr(12, "compression", "string", compression.name());
         x += &attr(12, "originalModuleName", "string", "evpose");
-        let output = if i == 0 {
-            "events".to_string()
-        } else {
-            format!("events_{i}")
-        };
-        x += &attr(12, "originalOutputName", "string", &output);
+        // Every camera's stream is `events`, told apart by its `source` (below), as DV names
+        // them: dv-processing's readers look a camera's events up under that name.
+        x += &attr(12, "originalOutputName", "string", "events");
         x += &attr(
             12,
             "typeDescription",
@@ -203,9 +220,7 @@ pub(super) fn info_xml(cameras: &[CameraInfo], compression: Compression) -> Stri
         if let Some(h) = cam.height {
             x += &attr(16, "sizeY", "int", &h.to_string());
         }
-        if let Some(name) = &cam.name {
-            x += &attr(16, "source", "string", name);
-        }
+        x += &attr(16, "source", "string", &source_name(cameras, i));
         x += &attr(16, "tsOffset", "long", "0");
         x += "            </node>\n        </node>\n";
     }
