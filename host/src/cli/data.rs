@@ -341,7 +341,7 @@ fn print_report(r: &EvalReport) {
         println!("  camera {c}: {} px", fmt(m.mpjpe2d_px));
     }
     // One name column for both tables, as wide as the longest name (`arm-abduction-right`).
-    let names = r.per_movement.iter().map(|(n, _)| n.as_str());
+    let names = r.per_movement.keys().map(String::as_str);
     let width = names
         .chain(evpose_core::skeleton::JOINT_NAMES.iter().copied())
         .map(str::len)
