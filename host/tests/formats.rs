@@ -748,6 +748,164 @@ fn text_layouts_and_units() {
     assert!(d.notes.assumptions.iter().any(|a| a.contains("header row")));
 }
 
+/// Every event of an opened reader, or its first error.
+fn drain_boxed(r: &mut dyn EventReader) -> Result<Vec<(u8, Event)>, ReadError> {
+    let (mut out, mut batch) = (Vec::new(), Batch::default());
+    while r.read_batch(&mut batch)? {
+        out.extend(
+            batch
+                .cameras
+                .iter()
+                .copied()
+                .zip(batch.events.iter().copied()),
+        );
+    }
+    Ok(out)
+}
+
+/// One event of the layout tests: x, y, t (µs), p.
+type LayoutEvent = (u16, u16, i64, bool);
+
+/// The twenty events the layout tests write: t increasing, x and y scattered.
+fn layout_events() -> Vec<LayoutEvent> {
+    (0..20)
+        .map(|i| {
+            (
+                (113 + 211 * i) % 346,
+                (155 + 101 * i) % 260,
+                223 + 2_500 * i as i64,
+                i % 3 == 0,
+            )
+        })
+        .map(|(x, y, t, p)| (x as u16, y as u16, t, p))
+        .collect()
+}
+
+fn layout_expected() -> Vec<(u8, Event)> {
+    layout_events()
+        .into_iter()
+        .map(|(x, y, t, p)| (0, Event::new(x, y, t, p)))
+        .collect()
+}
+
+/// Text as NumPy and pandas write it: whole microseconds written as floats are microseconds,
+/// and NumPy's commented header row names the columns.
+#[test]
+fn text_written_by_numpy_and_pandas_reads_as_written() {
+    let want = layout_expected();
+    let lines = |f: &dyn Fn(&LayoutEvent) -> String| -> Vec<u8> {
+        layout_events()
+            .iter()
+            .map(f)
+            .collect::<String>()
+            .into_bytes()
+    };
+    // np.savetxt's default format: "%.18e" for every value.
+    let sci = lines(&|&(x, y, t, p)| {
+        format!(
+            "{:.18e} {:.18e} {:.18e} {:.18e}\n",
+            t as f64,
+            x as f64,
+            y as f64,
+            u8::from(p) as f64
+        )
+    });
+    let d = text(&sci, None).unwrap();
+    assert_eq!(d.events, want);
+    assert!(
+        d.notes.assumptions[0].contains("timestamps in us"),
+        "{:?}",
+        d.notes
+    );
+    // A float column of whole microseconds under a header row (pandas).
+    let csv = [
+        b"t,x,y,p\n".to_vec(),
+        lines(&|&(x, y, t, p)| format!("{}.0,{x},{y},{}\n", t, u8::from(p))),
+    ]
+    .concat();
+    assert_eq!(text(&csv, None).unwrap().events, want);
+    // np.savetxt(header="x y t p") writes "# x y t p": a header, not a comment.
+    let commented = [
+        b"# x y t p\n".to_vec(),
+        lines(&|&(x, y, t, p)| format!("{x} {y} {t} {}\n", u8::from(p))),
+    ]
+    .concat();
+    let d = text(&commented, None).unwrap();
+    assert_eq!(d.events, want);
+    assert!(d
+        .notes
+        .assumptions
+        .iter()
+        .any(|a| a.contains("commented header row")));
+    // Seconds with fractions are still seconds.
+    let seconds =
+        lines(&|&(x, y, t, p)| format!("{:.6} {x} {y} {}\n", t as f64 * 1e-6, u8::from(p)));
+    assert_eq!(text(&seconds, None).unwrap().events, want);
+}
+
+/// Columns in another order than the format assumes make a pixel coordinate the time, which
+/// then mostly goes backwards: refused, where it was read.
+#[test]
+fn columns_in_another_order_are_refused_not_misread() {
+    // Text without a header is `t x y p`; these lines are `x y t p`.
+    let xytp: Vec<u8> = layout_events()
+        .iter()
+        .map(|&(x, y, t, p)| format!("{x} {y} {t} {}\n", u8::from(p)))
+        .collect::<String>()
+        .into_bytes();
+    let msg = error_text(text(&xytp, None));
+    assert!(
+        msg.contains("timestamps go backwards") && msg.contains("t x y p"),
+        "{msg}"
+    );
+    // An npy array is [x, y, t_us, p]; this one is [t, x, y, p] (every t below 65536).
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("txyp.npy");
+    let rows: Vec<f64> = layout_events()
+        .iter()
+        .flat_map(|&(x, y, t, p)| [t as f64, f64::from(x), f64::from(y), f64::from(u8::from(p))])
+        .collect();
+    evpose_host::array::write(&path, &[20, 4], &rows).unwrap();
+    let mut r = open(&path, None).unwrap();
+    let msg = drain_boxed(&mut *r).unwrap_err().to_string();
+    assert!(
+        msg.contains("timestamps go backwards") && msg.contains("[x, y, t_us, p]"),
+        "{msg}"
+    );
+}
+
+/// `.npy` times are whole microseconds unless `--time-unit` says otherwise: times in seconds
+/// were rounded to 0 µs.
+#[test]
+fn npy_times_are_whole_microseconds_or_a_stated_unit() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("seconds.npy");
+    let rows: Vec<f64> = layout_events()
+        .iter()
+        .flat_map(|&(x, y, t, p)| {
+            [
+                f64::from(x),
+                f64::from(y),
+                t as f64 * 1e-6,
+                f64::from(u8::from(p)),
+            ]
+        })
+        .collect();
+    evpose_host::array::write(&path, &[20, 4], &rows).unwrap();
+    let mut r = open(&path, None).unwrap();
+    let msg = drain_boxed(&mut *r).unwrap_err().to_string();
+    assert!(
+        msg.contains("not a whole number of microseconds") && msg.contains("--time-unit"),
+        "{msg}"
+    );
+    let opts = OpenOptions {
+        time_unit: Some(TimeUnit::S),
+        ..OpenOptions::default()
+    };
+    let mut r = open_with(&path, &opts).unwrap();
+    assert_eq!(drain_boxed(&mut *r).unwrap(), layout_expected());
+}
+
 #[test]
 fn text_damage_names_the_line() {
     // Integer microseconds detected from the first 1000 lines; a fraction after them.

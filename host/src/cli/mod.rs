@@ -125,8 +125,9 @@ pub struct InputArgs {
     /// Sensor height, for files that state no size (with --width).
     #[arg(long, requires = "width")]
     pub height: Option<u16>,
-    /// Unit of text timestamps (default: seconds if the first lines have a decimal point,
-    /// else microseconds).
+    /// Unit of text and `.npy` timestamps (default for text: seconds if a timestamp in the
+    /// first lines has a fraction, else microseconds; for `.npy`: whole microseconds, a
+    /// fraction refused).
     #[arg(long, value_enum)]
     pub time_unit: Option<io::TimeUnit>,
 }

@@ -231,8 +231,63 @@ pub struct OpenOptions {
     pub format: Option<Format>,
     /// Sensor size (width, height) for files that state none. A size the file states wins.
     pub size: Option<(u16, u16)>,
-    /// Unit of text timestamps; `None` detects it (see [`text`]).
+    /// Unit of text and `.npy` timestamps; `None` detects it for text (see [`text`]) and takes
+    /// whole microseconds for `.npy` (see [`npy`]).
     pub time_unit: Option<TimeUnit>,
+}
+
+/// Refuses a stream whose first events mostly go back in time: what a column order other
+/// than the one a format without names assumes gives (`[t, x, y, p]` read as `[x, y, t, p]`
+/// makes a pixel coordinate the time). Real recordings are in time order but for a few
+/// events; a quarter of the first [`OrderCheck::EVENTS`] going backwards is no recording.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct OrderCheck {
+    seen: usize,
+    backwards: usize,
+    last: Option<i64>,
+}
+
+impl OrderCheck {
+    /// Events judged: the stream's first.
+    pub(crate) const EVENTS: usize = 1_000;
+    /// Fewest events a verdict needs.
+    const MIN_EVENTS: usize = 16;
+
+    /// Counts `events` (the stream's next ones) while judging; `columns` names the order the
+    /// format assumes, for the message.
+    pub(crate) fn check(&mut self, events: &[Event], columns: &str) -> Result<(), ReadError> {
+        if self.seen >= Self::EVENTS {
+            return Ok(());
+        }
+        for e in events.iter().take(Self::EVENTS - self.seen) {
+            if self.last.is_some_and(|l| e.t < l) {
+                self.backwards += 1;
+            }
+            self.last = Some(e.t);
+            self.seen += 1;
+        }
+        // Judged once, when the window is full or the stream ended short of it (a batch
+        // shorter than it can hold).
+        let ended = events.len() < BATCH_EVENTS;
+        if (self.seen >= Self::EVENTS || ended)
+            && self.seen >= Self::MIN_EVENTS
+            && 4 * self.backwards > self.seen
+        {
+            let (b, n) = (self.backwards, self.seen);
+            self.seen = Self::EVENTS; // judged
+            return Err(ReadError::Corrupt {
+                offset: 0,
+                message: format!(
+                    "timestamps go backwards at {b} of the first {n} events: no recording is \
+                     out of order like that. Are the columns in another order than {columns}?"
+                ),
+            });
+        }
+        if self.seen >= Self::EVENTS || ended {
+            self.seen = Self::EVENTS;
+        }
+        Ok(())
+    }
 }
 
 /// What a reader repaired, skipped or assumed: the documented recoveries, with counts.
@@ -399,7 +454,10 @@ pub fn from_source<S: Read + Send + 'static>(
     let file = std::io::Cursor::new(head).chain(source);
     let size = opts.size;
     let reader: Box<dyn EventReader> = match format {
-        Format::Npy => Box::new(WithSize::new(npy::NpyReader::new(file)?, size)),
+        Format::Npy => Box::new(WithSize::new(
+            npy::NpyReader::new(file, opts.time_unit)?,
+            size,
+        )),
         Format::Aedat4 => Box::new(WithSize::new(aedat4::Aedat4Reader::new(file)?, size)),
         Format::Aedat2
         | Format::Aedat2Davis346

@@ -1,10 +1,18 @@
 //! `.npy` event arrays: shape (N, 4), columns `[x, y, t_us, p]`, any numeric dtype.
+//!
+//! Times are microseconds: a time with a fraction of a microsecond is refused (times in
+//! seconds or milliseconds would otherwise round to a handful of microseconds), unless
+//! `--time-unit` ([`super::OpenOptions::time_unit`]) states the unit; the times are then
+//! scaled to microseconds and rounded half away from zero. An array whose first events mostly
+//! go back in time is refused too ([`super::OrderCheck`]): its columns are in another order.
 
 use std::io::Read;
 
 use evpose_core::Event;
 
-use super::{Batch, EventReader, Format, ReadError, StreamInfo, BATCH_EVENTS};
+use super::{
+    Batch, EventReader, Format, OrderCheck, ReadError, StreamInfo, TimeUnit, BATCH_EVENTS,
+};
 use crate::array::{stream_f64, F64Values};
 
 /// Streaming reader of an (N, 4) `.npy` event array.
@@ -16,11 +24,15 @@ pub struct NpyReader<R> {
     rows: u64,
     /// A batch's rows, read in one block.
     rows_buf: Vec<[f64; 4]>,
+    /// The stated time unit, if any.
+    unit: Option<TimeUnit>,
+    order: OrderCheck,
 }
 
 impl<R: Read + Send + 'static> NpyReader<R> {
-    /// Parses the header; rejects arrays that are not (N, 4).
-    pub fn new(inner: R) -> Result<Self, ReadError> {
+    /// Parses the header; rejects arrays that are not (N, 4). `unit`: the time column's unit,
+    /// if stated (else microseconds, whole).
+    pub fn new(inner: R, unit: Option<TimeUnit>) -> Result<Self, ReadError> {
         let (shape, values) = stream_f64(inner).map_err(|e| ReadError::Corrupt {
             offset: 0,
             message: format!("bad npy header: {e}"),
@@ -47,12 +59,19 @@ impl<R: Read + Send + 'static> NpyReader<R> {
             rows_read: 0,
             rows,
             rows_buf: Vec::new(),
+            unit,
+            order: OrderCheck::default(),
         })
     }
 }
 
-/// Converts one `[x, y, t_us, p]` row, rejecting values that are not event fields.
-pub fn event_from_row(row: [f64; 4], index: u64) -> Result<Event, ReadError> {
+/// Converts one `[x, y, t, p]` row, rejecting values that are not event fields: `t` in `unit`
+/// (scaled and rounded), or without one whole microseconds.
+pub fn event_from_row(
+    row: [f64; 4],
+    index: u64,
+    unit: Option<TimeUnit>,
+) -> Result<Event, ReadError> {
     let [x, y, t, p] = row;
     // An integer in 0..=65535 exactly when the saturating conversion gives it back (NaN, a
     // fraction or a value out of range does not); no `trunc` call (a library call on x86-64
@@ -67,9 +86,24 @@ pub fn event_from_row(row: [f64; 4], index: u64) -> Result<Event, ReadError> {
     };
     let x = coord(x).ok_or_else(|| bad("x", x))?;
     let y = coord(y).ok_or_else(|| bad("y", y))?;
+    let t_us = match unit {
+        Some(u) => t * 10f64.powi(u.exponent_to_us()),
+        None => t,
+    };
     // i64 µs; f64 holds integers exactly up to 2^53 µs (285 years).
-    if !(t.is_finite() && t.abs() < 9.007_199_254_740_992e15) {
+    if !(t_us.is_finite() && t_us.abs() < 9.007_199_254_740_992e15) {
         return Err(bad("timestamp", t));
+    }
+    // Below 2^53 the truncation is exact: a fraction shows as a difference.
+    if unit.is_none() && (t as i64) as f64 != t {
+        return Err(ReadError::Corrupt {
+            offset: 0,
+            message: format!(
+                "row {index}: timestamp {t} is not a whole number of microseconds: are the \
+                 times in seconds or milliseconds? State the unit with --time-unit s|ms|us|ns \
+                 (us rounds)"
+            ),
+        });
     }
     let on = if p == 1.0 {
         true
@@ -78,7 +112,7 @@ pub fn event_from_row(row: [f64; 4], index: u64) -> Result<Event, ReadError> {
     } else {
         return Err(bad("polarity (expected 0/1 or -1/1)", p));
     };
-    Ok(Event::new(x, y, round_half_away(t), on))
+    Ok(Event::new(x, y, round_half_away(t_us), on))
 }
 
 /// `t.round() as i64` for `|t| < 2^53`, without the library call that `round` is on x86-64: the
@@ -120,7 +154,7 @@ impl<R: Read + Send + 'static> EventReader for NpyReader<R> {
         batch.events.reserve(n);
         let mut result = Ok(());
         for &row in &self.rows_buf {
-            match event_from_row(row, self.rows_read) {
+            match event_from_row(row, self.rows_read, self.unit) {
                 Ok(e) => batch.events.push(e),
                 Err(e) => {
                     result = Err(e);
@@ -130,7 +164,9 @@ impl<R: Read + Send + 'static> EventReader for NpyReader<R> {
             self.rows_read += 1;
         }
         batch.cameras.resize(batch.events.len(), 0);
-        result.map(|()| !batch.is_empty())
+        result?;
+        self.order.check(&batch.events, "[x, y, t_us, p]")?;
+        Ok(!batch.is_empty())
     }
 }
 
@@ -157,7 +193,9 @@ mod tests {
         ];
         for c in coords {
             let want = (c.fract() == 0.0 && (0.0..=65_535.0).contains(&c)).then_some(c as u16);
-            let got = event_from_row([c, 1.0, 0.0, 1.0], 0).ok().map(|e| e.x);
+            let got = event_from_row([c, 1.0, 0.0, 1.0], 0, None)
+                .ok()
+                .map(|e| e.x);
             assert_eq!(got, want, "x = {c}");
         }
         let mut ts = vec![

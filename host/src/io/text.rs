@@ -10,14 +10,16 @@
 //!   that is not all numbers is a header row naming the columns, in any order and among
 //!   others: `t`/`ts`/`time`/`timestamp`, `x`, `y`, `p`/`pol`/`polarity`; a unit suffix on the
 //!   time column (`t_us`, `timestamp[s]`, `time(ms)`) states the time unit. Every line then has
-//!   as many fields as the header row.
+//!   as many fields as the header row. A comment line that names all four columns the same
+//!   way (`# x y t p`, as NumPy's `savetxt(..., header="x y t p")` writes it) is that header.
 //! * x and y are integers 0–65535 (`12.0` is accepted), p is 0/1 or -1/1.
 //!
 //! # Time unit
 //!
 //! In order: `--time-unit`, the header's unit suffix, else detection from the first
-//! [`DETECT_BYTES`] after the header: seconds if a timestamp there has a
-//! decimal point or an exponent, microseconds otherwise. The decision is recorded in
+//! [`DETECT_BYTES`] after the header: seconds if a timestamp there has a fraction (a value,
+//! not a spelling: `223.0` and `2.23e+02`, which NumPy's `savetxt` writes for whole
+//! microseconds, are integers), microseconds otherwise. The decision is recorded in
 //! [`ReadNotes::assumptions`]. When microseconds were detected, a later timestamp with a
 //! fraction of a microsecond is an error (the detection was wrong; pass `--time-unit`), not a
 //! silent rounding. Timestamps are converted exactly (decimal arithmetic, no float rounding)
@@ -50,7 +52,7 @@ pub const MAX_FIELDS: usize = 64;
 const DETECT_LINES: usize = 1000;
 
 /// Which field holds what.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Columns {
     t: usize,
     x: usize,
@@ -86,6 +88,7 @@ pub struct TextReader<R> {
     info: StreamInfo,
     state: LineState,
     notes: ReadNotes,
+    order: super::OrderCheck,
     finished: bool,
 }
 
@@ -121,6 +124,21 @@ impl<R: Read> TextReader<R> {
             };
             let body = trim(body);
             if is_comment(body) {
+                // A comment that names every column is a header (NumPy's `savetxt(header=…)`
+                // writes `# x y t p`); any other comment is skipped.
+                let named = trim(body.get(1..).unwrap_or_default());
+                let mut fields = [&[][..]; MAX_FIELDS];
+                if let Ok((c, u)) = split_fields(named, &mut fields)
+                    .map_err(String::from)
+                    .and_then(|n| header_columns(&fields[..n]))
+                {
+                    cols = c;
+                    header_unit = u;
+                    notes.assumptions.push(format!(
+                        "columns from the commented header row: {}",
+                        String::from_utf8_lossy(body)
+                    ));
+                }
                 src.consume(len);
                 line += 1;
                 continue;
@@ -153,10 +171,7 @@ impl<R: Read> TextReader<R> {
                 src.fill(DETECT_BYTES)?;
                 let seconds = has_fractional_time(src.data(), cols);
                 let (u, why) = if seconds {
-                    (
-                        TimeUnit::S,
-                        "a timestamp in the first lines has a decimal point",
-                    )
+                    (TimeUnit::S, "a timestamp in the first lines has a fraction")
                 } else {
                     (TimeUnit::Us, "the first lines have integer timestamps")
                 };
@@ -187,11 +202,23 @@ impl<R: Read> TextReader<R> {
                 line,
             },
             notes,
+            order: super::OrderCheck::default(),
             finished: false,
         })
     }
 
     fn fill(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
+        let start = batch.len();
+        self.fill_lines(batch)?;
+        let columns = if self.state.cols == T_X_Y_P {
+            "t x y p (a file without a header row; name the columns in one, e.g. `x y t p`)"
+        } else {
+            "the header row's"
+        };
+        self.order.check(&batch.events[start..], columns)
+    }
+
+    fn fill_lines(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
         while batch.len() < BATCH_EVENTS {
             let have = self.src.fill(1)?;
             if have == 0 {
@@ -546,7 +573,8 @@ fn header_columns(names: &[&[u8]]) -> Result<(Columns, Option<TimeUnit>), String
     }
 }
 
-/// Whether a timestamp in the first whole lines of `data` has a decimal point or exponent.
+/// Whether a timestamp in the first whole lines of `data` has a fraction: its value is not a
+/// whole number (however it is written: `223.0` and `2.23e+02` are whole).
 fn has_fractional_time(data: &[u8], cols: Columns) -> bool {
     let mut fields = [&[][..]; MAX_FIELDS];
     data.split(|&b| b == b'\n')
@@ -555,11 +583,8 @@ fn has_fractional_time(data: &[u8], cols: Columns) -> bool {
         .filter(|l| !is_comment(l))
         .filter_map(|l| {
             let n = split_fields(l, &mut fields).ok()?;
-            (n > cols.t).then(|| {
-                fields[cols.t]
-                    .iter()
-                    .any(|b| matches!(b, b'.' | b'e' | b'E'))
-            })
+            (n > cols.t)
+                .then(|| parse_decimal(fields[cols.t]).is_some_and(|d| d.scaled(0, true).is_none()))
         })
         .any(|f| f)
 }
