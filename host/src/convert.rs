@@ -18,6 +18,9 @@ pub struct Converted {
     pub cameras: Vec<u8>,
     /// What the user should know (a camera without events, a missing sensor size).
     pub warnings: Vec<String>,
+    /// What the reader assumed where the file is ambiguous (the time unit of a text file, the
+    /// sensor of an AEDAT 2.0 file): [`io::ReadNotes::assumptions`].
+    pub assumptions: Vec<String>,
 }
 
 /// Refuses to write over the recording being read (the output is created before the input has
@@ -93,6 +96,7 @@ pub fn to_npy(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Result
         events: written,
         cameras: vec![camera],
         warnings,
+        assumptions: summary.notes.assumptions,
     })
 }
 
@@ -171,5 +175,6 @@ pub fn to_aedat4(
         events: written,
         cameras: cameras.iter().map(|c| c.id).collect(),
         warnings,
+        assumptions: summary.notes.assumptions,
     })
 }

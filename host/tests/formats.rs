@@ -837,6 +837,12 @@ fn text_written_by_numpy_and_pandas_reads_as_written() {
         .assumptions
         .iter()
         .any(|a| a.contains("commented header row")));
+    // A unit in UTF-8 in the header row is detected as text (it was refused as binary).
+    let micro = "t[µs],x,y,p\n223,113,155,0\n".as_bytes();
+    assert!(evpose_host::io::text::looks_like_text(micro));
+    assert!(!evpose_host::io::text::looks_like_text(
+        b"t,x,y,p\n223,113,\x01155,0\n"
+    ));
     // Seconds with fractions are still seconds.
     let seconds =
         lines(&|&(x, y, t, p)| format!("{:.6} {x} {y} {}\n", t as f64 * 1e-6, u8::from(p)));

@@ -315,6 +315,9 @@ fn convert(a: &ConvertArgs) -> Result<()> {
     for w in &done.warnings {
         eprintln!("warning: {w}");
     }
+    for a in &done.assumptions {
+        eprintln!("assumed: {a}");
+    }
     let ids: Vec<String> = done.cameras.iter().map(u8::to_string).collect();
     eprintln!(
         "wrote {} events of camera(s) {} to {}{}",

@@ -589,23 +589,24 @@ fn has_fractional_time(data: &[u8], cols: Columns) -> bool {
         .any(|f| f)
 }
 
-/// Whether `head` (the start of a file) looks like a text event file: printable ASCII whose
+/// Whether `head` (the start of a file) looks like a text event file: printable UTF-8 whose
 /// first non-comment line is four numbers, or a header row naming t/x/y/p followed by a line
 /// of numbers.
 pub fn looks_like_text(head: &[u8]) -> bool {
     let head = head.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(head);
-    if head.is_empty()
-        || !head
-            .iter()
-            .all(|&b| matches!(b, b'\t' | b'\n' | b'\r' | 0x20..=0x7E))
-    {
-        return false;
-    }
     // A cut last line is not judged.
     let whole = match head.iter().rposition(|&b| b == b'\n') {
         Some(i) if i + 1 < head.len() => &head[..i],
         _ => head,
     };
+    // UTF-8 without control characters but tab and line ends (a header row may say `t[µs]`).
+    let printable = std::str::from_utf8(whole).is_ok_and(|t| {
+        t.chars()
+            .all(|c| matches!(c, '\t' | '\n' | '\r') || !c.is_control())
+    });
+    if whole.is_empty() || !printable {
+        return false;
+    }
     let mut fields = [&[][..]; MAX_FIELDS];
     let mut cols = None;
     for line in whole.split(|&b| b == b'\n').take(DETECT_LINES).map(trim) {
