@@ -843,6 +843,23 @@ fn text_written_by_numpy_and_pandas_reads_as_written() {
     assert!(!evpose_host::io::text::looks_like_text(
         b"t,x,y,p\n223,113,\x01155,0\n"
     ));
+    // e2vid's events.txt: a first line "W H" is the sensor size; pandas' boolean polarity.
+    let e2vid = [
+        b"346 260\n".to_vec(),
+        lines(&|&(x, y, t, p)| {
+            format!(
+                "{:.6} {x} {y} {}\n",
+                t as f64 * 1e-6,
+                if p { "True" } else { "False" }
+            )
+        }),
+    ]
+    .concat();
+    assert!(evpose_host::io::text::looks_like_text(&e2vid));
+    let r = TextReader::new(&e2vid[..], None, None).unwrap();
+    assert_eq!(r.info().cameras[0].width, Some(346));
+    assert_eq!(r.info().cameras[0].height, Some(260));
+    assert_eq!(drain(r).unwrap().events, want);
     // Seconds with fractions are still seconds.
     let seconds =
         lines(&|&(x, y, t, p)| format!("{:.6} {x} {y} {}\n", t as f64 * 1e-6, u8::from(p)));

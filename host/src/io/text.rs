@@ -12,7 +12,10 @@
 //!   time column (`t_us`, `timestamp[s]`, `time(ms)`) states the time unit. Every line then has
 //!   as many fields as the header row. A comment line that names all four columns the same
 //!   way (`# x y t p`, as NumPy's `savetxt(..., header="x y t p")` writes it) is that header.
-//! * x and y are integers 0–65535 (`12.0` is accepted), p is 0/1 or -1/1.
+//! * x and y are integers 0–65535 (`12.0` is accepted), p is 0/1, -1/1 or true/false (any
+//!   case: pandas writes a boolean column as `True`/`False`).
+//! * A first line of exactly two integers is the sensor size `W H` (the e2vid convention for
+//!   RPG-style `events.txt`); it wins over `--width/--height`, like a size any format states.
 //!
 //! # Time unit
 //!
@@ -109,6 +112,9 @@ impl<R: Read> TextReader<R> {
         let mut notes = ReadNotes::default();
         let mut cols = T_X_Y_P;
         let mut header_unit = None;
+        // A first line of two integers is the sensor size (the e2vid / RPG `W H` convention).
+        let mut stated_size = None;
+        let mut first = true;
         // Comments, then either the header row or the first data line (left unread).
         loop {
             let at = src.offset();
@@ -145,7 +151,18 @@ impl<R: Read> TextReader<R> {
             }
             let mut fields = [&[][..]; MAX_FIELDS];
             let n = split_fields(body, &mut fields).map_err(|m| bad_line(at, line, m))?;
-            if fields[..n].iter().all(|f| parse_decimal(f).is_some()) {
+            if let (true, Some(wh)) = (first, sensor_size(&fields[..n])) {
+                stated_size = Some(wh);
+                notes.assumptions.push(format!(
+                    "sensor size {} x {} from the first line (the e2vid convention)",
+                    wh.0, wh.1
+                ));
+                src.consume(len);
+                line += 1;
+                first = false;
+                continue;
+            }
+            if fields[..n].iter().all(|f| is_value(f)) {
                 break;
             }
             let (c, u) = header_columns(&fields[..n]).map_err(|m| bad_line(at, line, &m))?;
@@ -182,6 +199,8 @@ impl<R: Read> TextReader<R> {
                 (u, u == TimeUnit::Us)
             }
         };
+        // A size the file states wins over the caller's (as for every format).
+        let size = stated_size.or(size);
         Ok(Self {
             src,
             info: StreamInfo {
@@ -320,13 +339,16 @@ fn parse_line(
     let on = match parse_decimal(fields[c.p]).and_then(|d| d.scaled(0, true)) {
         Some(1) => true,
         Some(0 | -1) => false,
-        _ => {
-            return Err(bad_line(
-                at,
-                line,
-                &format!("polarity {:?} is not 0/1 or -1/1", field(c.p)),
-            ))
-        }
+        _ => match boolean(fields[c.p]) {
+            Some(on) => on,
+            None => {
+                return Err(bad_line(
+                    at,
+                    line,
+                    &format!("polarity {:?} is not 0/1, -1/1 or true/false", field(c.p)),
+                ))
+            }
+        },
     };
     if let Some((w, h)) = state.size {
         if x >= w || y >= h {
@@ -339,6 +361,36 @@ fn parse_line(
     }
     batch.push(0, Event::new(x, y, t, on));
     Ok(())
+}
+
+/// `true`/`false` in any case (Python's `True`/`False`, as pandas writes a boolean polarity).
+fn boolean(field: &[u8]) -> Option<bool> {
+    if field.eq_ignore_ascii_case(b"true") {
+        Some(true)
+    } else if field.eq_ignore_ascii_case(b"false") {
+        Some(false)
+    } else {
+        None
+    }
+}
+
+/// A data field: a number, or a boolean polarity.
+fn is_value(field: &[u8]) -> bool {
+    parse_decimal(field).is_some() || boolean(field).is_some()
+}
+
+/// A line of exactly two integers 1..=65535: a sensor size `W H`.
+fn sensor_size(fields: &[&[u8]]) -> Option<(u16, u16)> {
+    let dim = |f: &[u8]| {
+        parse_decimal(f)
+            .and_then(|d| d.scaled(0, true))
+            .and_then(|v| u16::try_from(v).ok())
+            .filter(|&v| v > 0)
+    };
+    match fields {
+        [w, h] => Some((dim(w)?, dim(h)?)),
+        _ => None,
+    }
 }
 
 fn bad_line(offset: u64, line: u64, message: &str) -> ReadError {
@@ -609,6 +661,7 @@ pub fn looks_like_text(head: &[u8]) -> bool {
     }
     let mut fields = [&[][..]; MAX_FIELDS];
     let mut cols = None;
+    let mut first_seen = false;
     for line in whole.split(|&b| b == b'\n').take(DETECT_LINES).map(trim) {
         if is_comment(line) {
             continue;
@@ -616,7 +669,12 @@ pub fn looks_like_text(head: &[u8]) -> bool {
         let Ok(n) = split_fields(line, &mut fields) else {
             return false;
         };
-        let numeric = fields[..n].iter().all(|f| parse_decimal(f).is_some());
+        let numeric = fields[..n].iter().all(|f| is_value(f));
+        if !first_seen && cols.is_none() && sensor_size(&fields[..n]).is_some() {
+            first_seen = true;
+            continue; // a `W H` first line
+        }
+        first_seen = true;
         return match cols {
             None if numeric => n == 4,
             None => match header_columns(&fields[..n]) {
