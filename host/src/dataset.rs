@@ -52,7 +52,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::array::{self, NpyAppender};
-use crate::io::{self, Batch, Format, OpenOptions};
+use crate::io::{self, Format, OpenOptions};
 use crate::pipeline::VecStorage;
 use crate::simulate::{self, Split};
 
@@ -210,10 +210,11 @@ pub fn sources(dir: &Path) -> Result<Vec<Source>> {
 /// naming) with its Vicon file `S<subject>_<session>_<movement>.mat` beside it (`XYZPOS`, read
 /// by [`crate::dhp19::mat`], joints by name). DHP19's split: subjects 1–12 train, 13–17 test.
 ///
-/// Not verified against real DHP19 files (none are available to this project): the Vicon
-/// clock starts at the first event (DHP19's own fallback; its code aligns with trigger events,
-/// which the AEDAT 2.0 reader skips), and pixels are the sensor's (DHP19's frame code mirrors
-/// x), so labels may need that mirror. See the README.
+/// Pixels are where DHP19's own code puts them (x = 345 − x_raw, y = 259 − y_raw: see
+/// [`crate::io::aedat2`]), so labels projected with DHP19's P matrices land on the events. Not
+/// verified against real DHP19 files (none are available to this project): the Vicon clock
+/// starts at the first event (DHP19's own fallback; its code aligns with trigger events, which
+/// the AEDAT 2.0 reader skips). See the README.
 pub fn dhp19_sources(dir: &Path) -> Result<Vec<Source>> {
     let mut out = Vec::new();
     let mut names: Vec<PathBuf> = std::fs::read_dir(dir)
@@ -327,21 +328,7 @@ pub fn read_events(path: &Path) -> Result<Vec<(u8, Event)>> {
         ..OpenOptions::default()
     };
     let mut reader = io::open_with(path, &opts)?;
-    let mut batch = Batch::default();
-    let mut out = Vec::new();
-    while reader
-        .read_batch(&mut batch)
-        .with_context(|| path.display().to_string())?
-    {
-        out.extend(
-            batch
-                .cameras
-                .iter()
-                .copied()
-                .zip(batch.events.iter().copied()),
-        );
-    }
-    Ok(out)
+    io::read_all(reader.as_mut()).with_context(|| path.display().to_string())
 }
 
 /// Mean of the ground-truth samples whose time lies in `[t0, t1]` µs (the nearest sample when

@@ -322,7 +322,7 @@ fn damaged_files_are_errors_naming_the_offset() {
     );
     // The AEDAT 2.0 sensor cannot be guessed: refused with the way out.
     let mut anon = encoders::aedat2_header(None, true);
-    encoders::aedat2_record(&mut anon, encoders::davis_addr(1, 2, true, 260), 5);
+    encoders::aedat2_record(&mut anon, encoders::davis_addr(1, 2, true, 346, 260), 5);
     let anon_path = tmp("anon.aedat");
     std::fs::write(&anon_path, &anon).unwrap();
     assert!(evpose_err(&["info", s(&anon_path)]).contains("--format aedat2-davis346"));
@@ -337,7 +337,7 @@ fn damaged_files_are_errors_naming_the_offset() {
     // Text output lists the recoveries.
     let mut special = encoders::aedat2_header(Some("DAVIS240C"), true);
     encoders::aedat2_record(&mut special, 0x400, 1);
-    encoders::aedat2_record(&mut special, encoders::davis_addr(1, 2, true, 180), 2);
+    encoders::aedat2_record(&mut special, encoders::davis_addr(1, 2, true, 240, 180), 2);
     let sp = tmp("special.aedat");
     std::fs::write(&sp, &special).unwrap();
     let text = evpose(&["info", s(&sp)]);

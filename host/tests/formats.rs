@@ -214,22 +214,22 @@ fn aedat2_davis346_decodes_spec_bytes() {
     let mut f = aedat2_header(Some("eu.seebetter.ini.chips.davis.DAVIS346B"), true);
     let start = f.len() as u64;
     // Corners, both polarities: y_raw = 259 - y.
-    aedat2_record(&mut f, davis_addr(0, 0, true, 260), 100);
-    aedat2_record(&mut f, davis_addr(345, 259, false, 260), 101);
-    // By hand: x = 17, y_raw = 200 (y = 59), ON.
+    aedat2_record(&mut f, davis_addr(0, 0, true, 346, 260), 100);
+    aedat2_record(&mut f, davis_addr(345, 259, false, 346, 260), 101);
+    // By hand: x_raw = 17 (x = 345 − 17 = 328, jAER's `sx1 − x_raw`), y_raw = 200 (y = 59), ON.
     aedat2_record(&mut f, (200 << 22) | (17 << 12) | (1 << 11), 102);
     // APS sample (bit 31), IMU sample (bits 31 and 11), special event (bit 10): skipped.
     aedat2_record(&mut f, 0x8000_0000 | (5 << 12), 103);
     aedat2_record(&mut f, 0x8000_0C00, 104);
     aedat2_record(&mut f, 0x0000_0400, 105);
-    aedat2_record(&mut f, davis_addr(10, 20, false, 260), 106);
+    aedat2_record(&mut f, davis_addr(10, 20, false, 346, 260), 106);
     let d = decode(Dec::Aedat2, &f).unwrap();
     assert_eq!(
         d.events,
         events_of(&[
             ev(0, 0, 0, 100, true),
             ev(0, 345, 259, 101, false),
-            ev(0, 17, 59, 102, true),
+            ev(0, 328, 59, 102, true),
             ev(0, 10, 20, 106, false),
         ])
     );
@@ -259,7 +259,7 @@ fn aedat2_sensor_choice() {
     let events = [ev(0, 239, 0, 5, true), ev(0, 0, 179, 6, false)];
     let mut f = aedat2_header(Some("eu.seebetter.ini.chips.davis.DAVIS240C"), false);
     for e in &events {
-        aedat2_record(&mut f, davis_addr(e.x, e.y, e.on, 180), e.t as u32);
+        aedat2_record(&mut f, davis_addr(e.x, e.y, e.on, 240, 180), e.t as u32);
     }
     // Header without the end marker: the data starts at the first byte that is not '#'.
     let d = decode(Dec::Aedat2, &f).unwrap();
@@ -292,7 +292,7 @@ fn aedat2_sensor_choice() {
 
     // A DAVIS of unknown size needs --width/--height.
     let mut odd = aedat2_header(Some("eu.seebetter.ini.chips.davis.DavisFuture"), true);
-    aedat2_record(&mut odd, davis_addr(3, 4, true, 100), 9);
+    aedat2_record(&mut odd, davis_addr(3, 4, true, 200, 100), 9);
     assert!(error_text(decode(Dec::Aedat2, &odd)).contains("--width"));
     let d = decode_sized(Dec::Aedat2, &odd, Some((200, 100))).unwrap();
     assert_eq!(d.events, events_of(&[ev(0, 3, 4, 9, true)]));
@@ -306,11 +306,12 @@ fn aedat2_sensor_choice() {
 
 #[test]
 fn data_starting_with_the_comment_byte_ends_the_header() {
-    // AEDAT 2.0 without the end marker; the first address byte is '#' (0x23): y_raw = 140.
+    // AEDAT 2.0 without the end marker; the first address byte is '#' (0x23): y_raw = 140,
+    // x_raw = 7.
     let mut f = aedat2_header(Some("DAVIS346B"), false);
     aedat2_record(&mut f, 0x2300_0000 | (7 << 12), 5);
     let d = decode(Dec::Aedat2, &f).unwrap();
-    assert_eq!(d.events, events_of(&[ev(0, 7, 259 - 140, 5, false)]));
+    assert_eq!(d.events, events_of(&[ev(0, 345 - 7, 259 - 140, 5, false)]));
     // RAW without `% end`; the first word's first byte is '%' (0x25).
     let mut f = raw_header(&["evt 2.0"]);
     evt2_word(&mut f, 0x8000_0025);
@@ -351,15 +352,50 @@ fn aedat2_dhp19_four_cameras() {
     assert_eq!(drain(r).unwrap().events, events_of(&events));
     // Camera id 4 is impossible.
     let mut bad = f.clone();
-    aedat2_record(&mut bad, davis_addr(1, 1, true, 260) | 4, 2_000);
+    aedat2_record(&mut bad, davis_addr(1, 1, true, 346, 260) | 4, 2_000);
     let msg = error_text(decode(Dec::Aedat2, &bad));
     assert!(msg.contains("camera id 4"), "{msg}");
+}
+
+/// DHP19's own decoding of its recordings (SensorsINI/DHP19, `generate_DHP19/
+/// extract_from_aedat.m`: `X = (sx-x)+cam*sx; y = sy-y_raw;` with `sx = 346`, `sy = 260`,
+/// 1-based, over the raw address fields of `ImportAedatDataVersion1or2.m`), jAER's
+/// (`DavisEventExtractor`: `e.x = sx1 - x_raw`) and the projection of its labels
+/// (`v = H - v'` on P's output) all place the raw pixel (c, r) at column 345 − c, row 259 − r
+/// from the top-left: where this reader must put it for DHP19's P matrices to project the
+/// labels onto the events. Through stop 42 it put it at column c: labels mirrored left–right
+/// on real DHP19 files (the simulator wrote the same mirror, so synthetic data never showed
+/// it).
+#[test]
+fn dhp19_addresses_decode_as_dhp19_and_jaer_decode_them() {
+    let mut f = aedat2_header(
+        Some("ch.unizh.ini.jaer.chip.multicamera.MultiDavis346BCameraChip"),
+        true,
+    );
+    let raw: Vec<(u32, u32, u32)> = (0..40u32)
+        .map(|i| ((i * 37) % 346, (i * 53) % 260, i % 4))
+        .chain([(0, 0, 0), (345, 259, 3), (17, 200, 1)])
+        .collect();
+    for (i, &(c, r, cam)) in raw.iter().enumerate() {
+        aedat2_record(&mut f, (r << 22) | (c << 12) | (1 << 11) | cam, i as u32);
+    }
+    let got = decode(Dec::Aedat2, &f).unwrap().events;
+    let want: Vec<(u8, Event)> = raw
+        .iter()
+        .enumerate()
+        .map(|(i, &(c, r, cam))| {
+            // DHP19's 1-based (X, y) minus one: (346 − c) − 1, (260 − r) − 1.
+            let (x, y) = (346 - c - 1, 260 - r - 1);
+            (cam as u8, Event::new(x as u16, y as u16, i as i64, true))
+        })
+        .collect();
+    assert_eq!(got, want);
 }
 
 #[test]
 fn aedat2_timestamps_unwrap() {
     let mut f = aedat2_header(Some("DAVIS346B"), true);
-    let a = |f: &mut Vec<u8>, ts: u32| aedat2_record(f, davis_addr(1, 1, true, 260), ts);
+    let a = |f: &mut Vec<u8>, ts: u32| aedat2_record(f, davis_addr(1, 1, true, 346, 260), ts);
     a(&mut f, u32::MAX - 10);
     a(&mut f, 5); // wrapped
     a(&mut f, u32::MAX - 3); // late event from before the wrap
@@ -748,19 +784,12 @@ fn text_layouts_and_units() {
     assert!(d.notes.assumptions.iter().any(|a| a.contains("header row")));
 }
 
-/// Every event of an opened reader, or its first error.
-fn drain_boxed(r: &mut dyn EventReader) -> Result<Vec<(u8, Event)>, ReadError> {
-    let (mut out, mut batch) = (Vec::new(), Batch::default());
-    while r.read_batch(&mut batch)? {
-        out.extend(
-            batch
-                .cameras
-                .iter()
-                .copied()
-                .zip(batch.events.iter().copied()),
-        );
-    }
-    Ok(out)
+/// An (20, 4) npy of the layout events, one row each as `row` lays it out.
+fn layout_npy(dir: &Path, name: &str, row: impl Fn(&LayoutEvent) -> [f64; 4]) -> PathBuf {
+    let path = dir.join(name);
+    let rows: Vec<f64> = layout_events().iter().flat_map(row).collect();
+    evpose_host::array::write(&path, &[20, 4], &rows).unwrap();
+    path
 }
 
 /// One event of the layout tests: x, y, t (µs), p.
@@ -883,14 +912,11 @@ fn columns_in_another_order_are_refused_not_misread() {
     );
     // An npy array is [x, y, t_us, p]; this one is [t, x, y, p] (every t below 65536).
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("txyp.npy");
-    let rows: Vec<f64> = layout_events()
-        .iter()
-        .flat_map(|&(x, y, t, p)| [t as f64, f64::from(x), f64::from(y), f64::from(u8::from(p))])
-        .collect();
-    evpose_host::array::write(&path, &[20, 4], &rows).unwrap();
+    let path = layout_npy(dir.path(), "txyp.npy", |&(x, y, t, p)| {
+        [t as f64, f64::from(x), f64::from(y), f64::from(u8::from(p))]
+    });
     let mut r = open(&path, None).unwrap();
-    let msg = drain_boxed(&mut *r).unwrap_err().to_string();
+    let msg = evpose_host::io::read_all(&mut *r).unwrap_err().to_string();
     assert!(
         msg.contains("timestamps go backwards") && msg.contains("[x, y, t_us, p]"),
         "{msg}"
@@ -902,21 +928,16 @@ fn columns_in_another_order_are_refused_not_misread() {
 #[test]
 fn npy_times_are_whole_microseconds_or_a_stated_unit() {
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("seconds.npy");
-    let rows: Vec<f64> = layout_events()
-        .iter()
-        .flat_map(|&(x, y, t, p)| {
-            [
-                f64::from(x),
-                f64::from(y),
-                t as f64 * 1e-6,
-                f64::from(u8::from(p)),
-            ]
-        })
-        .collect();
-    evpose_host::array::write(&path, &[20, 4], &rows).unwrap();
+    let path = layout_npy(dir.path(), "seconds.npy", |&(x, y, t, p)| {
+        [
+            f64::from(x),
+            f64::from(y),
+            t as f64 * 1e-6,
+            f64::from(u8::from(p)),
+        ]
+    });
     let mut r = open(&path, None).unwrap();
-    let msg = drain_boxed(&mut *r).unwrap_err().to_string();
+    let msg = evpose_host::io::read_all(&mut *r).unwrap_err().to_string();
     assert!(
         msg.contains("not a whole number of microseconds") && msg.contains("--time-unit"),
         "{msg}"
@@ -926,7 +947,10 @@ fn npy_times_are_whole_microseconds_or_a_stated_unit() {
         ..OpenOptions::default()
     };
     let mut r = open_with(&path, &opts).unwrap();
-    assert_eq!(drain_boxed(&mut *r).unwrap(), layout_expected());
+    assert_eq!(
+        evpose_host::io::read_all(&mut *r).unwrap(),
+        layout_expected()
+    );
 }
 
 #[test]
@@ -1165,7 +1189,7 @@ fn repeatable() -> Vec<(Dec, Vec<u8>, Vec<u8>)> {
     let a2_head = aedat2_header(Some("DAVIS346B"), true);
     let mut a2 = Vec::new();
     for x in &e {
-        aedat2_record(&mut a2, davis_addr(x.x, x.y, x.on, 260), x.t as u32);
+        aedat2_record(&mut a2, davis_addr(x.x, x.y, x.on, 346, 260), x.t as u32);
     }
     let a3_head = aedat3_header(&[(1, "DAVIS346B")]);
     let mut a3 = Vec::new();

@@ -8,8 +8,10 @@
 //! records: u32 big-endian address, u32 big-endian timestamp (µs)
 //! ```
 //!
-//! Address: `y_raw = 259 − y` in bits 22–30 (jAER's bottom-left origin), `x` in bits 12–21,
-//! ON in bit 11, the camera channel in bits 0–3; bits 31 (APS/IMU) and 10 (special) clear.
+//! Address: `y_raw = 259 − y` in bits 22–30 (jAER's bottom-left origin), `x_raw = 345 − x` in
+//! bits 12–21 (jAER decodes `x = 345 − x_raw`), ON in bit 11, the camera channel in bits 0–3;
+//! bits 31 (APS/IMU) and 10 (special) clear. An event at `(x, y)` of the picture (top-left
+//! origin) is where DHP19's and jAER's code put it, and where DHP19's P matrices project.
 
 use std::io::{self, Write};
 
@@ -39,8 +41,8 @@ pub fn address(channel: u8, e: &Event) -> io::Result<u32> {
             format!("event {e:?} on channel {channel} does not fit DHP19's 4 × 346 × 260"),
         ));
     }
-    let y_raw = u32::from(HEIGHT - 1 - e.y);
-    Ok(y_raw << 22 | u32::from(e.x) << 12 | u32::from(e.on) << 11 | u32::from(channel))
+    let (x_raw, y_raw) = (u32::from(WIDTH - 1 - e.x), u32::from(HEIGHT - 1 - e.y));
+    Ok(y_raw << 22 | x_raw << 12 | u32::from(e.on) << 11 | u32::from(channel))
 }
 
 /// Writes `events` as a DHP19 AEDAT 2.0 file. Timestamps are written as they are (µs), so they

@@ -22,7 +22,8 @@ fn decode(bytes: &[u8]) -> (Vec<String>, Vec<(u8, Event)>) {
             let t = u32::from_be_bytes([r[4], r[5], r[6], r[7]]);
             assert_eq!(a & 0x8000_0400, 0, "APS/special bits set");
             let y_raw = (a >> 22) & 0x1FF;
-            let x = (a >> 12) & 0x3FF;
+            // jAER's and DHP19's decoding: x = 345 − x_raw, y = 259 − y_raw (top-left origin).
+            let x = 345 - ((a >> 12) & 0x3FF);
             let on = a & 0x800 != 0;
             let cam = (a & 0xF) as u8;
             assert_eq!(a & 0x3F0, 0, "bits 4–9 unused");
@@ -66,9 +67,10 @@ fn round_trip_through_the_dhp19_layout() {
 
 #[test]
 fn address_bits_match_the_spec() {
-    // x = 5, y = 0 (top row → y_raw = 259), ON, camera 2.
+    // x = 5 (x_raw = 345 − 5 = 340, as DHP19's `X = sx − x` and jAER's `sx1 − x_raw` read it
+    // back), y = 0 (top row → y_raw = 259), ON, camera 2.
     let a = address(2, &Event::new(5, 0, 0, true)).unwrap();
-    assert_eq!(a, 259 << 22 | 5 << 12 | 1 << 11 | 2);
+    assert_eq!(a, 259 << 22 | 340 << 12 | 1 << 11 | 2);
 }
 
 #[test]

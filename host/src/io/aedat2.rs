@@ -38,12 +38,17 @@
 //! # Addresses
 //!
 //! * DAVIS (jAER `DavisBaseCamera`): bit 31 = 1 is an APS or IMU sample, bit 10 = 1 a special
-//!   event; both clear is a polarity event with y = bits 22–30, x = bits 12–21, ON = bit 11.
-//!   jAER's origin is bottom-left, so `y = height - 1 - y_raw` gives the top-left origin of
-//!   [`Event`]. x is kept as is.
-//! * DHP19: DAVIS layout, camera id = bits 0–3 (0–3; anything else is an error), y flipped the
-//!   same way. DHP19's own frame generation also mirrors x (`346 - x`) when it builds its
-//!   images; this reader does not: it delivers the sensor's orientation.
+//!   event; both clear is a polarity event with y_raw = bits 22–30, x_raw = bits 12–21, ON =
+//!   bit 11. jAER decodes `x = width − 1 − x_raw` (`DavisEventExtractor`: `e.x = sx1 − …`) and
+//!   keeps y from the bottom; this reader gives jAER's picture with [`Event`]'s top-left
+//!   origin: `x = width − 1 − x_raw`, `y = height − 1 − y_raw`.
+//! * DHP19: DAVIS layout, camera id = bits 0–3 (0–3; anything else is an error), x and y as
+//!   for DAVIS. DHP19's frame generation (`extract_from_aedat.m`: `X = sx − x`, `y = sy −
+//!   y_raw`) and its projection of the Vicon joints (P's `u`, and `v = H − v'`) use exactly
+//!   this orientation, so labels projected with DHP19's P matrices land on the events.
+//!   (Through stop 42 this reader kept x_raw, and on real DHP19 files the labels were mirrored
+//!   left–right against the events; the simulator wrote the same mirror, so synthetic data did
+//!   not show it.)
 //! * DVS128 (jAER `Tmpdiff128`, libcaer `dvs128`): bits 15–31 set is a sync / special event;
 //!   otherwise x = 127 − bits 1–7, and the event is ON when bit 0 is **0** (both jAER and
 //!   libcaer invert the polarity bit). The row, bits 8–14, counts from the bottom as in every
@@ -385,10 +390,10 @@ impl Decoder<'_> {
             if addr & 0x8000_0400 != 0 {
                 return Ok(None);
             }
-            let x = (addr >> 12) & 0x3FF;
+            let x_raw = (addr >> 12) & 0x3FF;
             let y_raw = (addr >> 22) & 0x1FF;
-            if x >= u32::from(w) || y_raw >= u32::from(h) {
-                return Err(Bad::OutOfSensor(x, y_raw, (w, h)));
+            if x_raw >= u32::from(w) || y_raw >= u32::from(h) {
+                return Err(Bad::OutOfSensor(x_raw, y_raw, (w, h)));
             }
             let camera = if DHP19 {
                 let c = addr & 0xF;
@@ -399,8 +404,9 @@ impl Decoder<'_> {
             } else {
                 0
             };
-            let y = h - 1 - y_raw as u16;
-            Ok(Some((camera, x as u16, y, addr & 0x800 != 0)))
+            // Both in range (checked above): jAER's picture, top-left origin.
+            let (x, y) = (w - 1 - x_raw as u16, h - 1 - y_raw as u16);
+            Ok(Some((camera, x, y, addr & 0x800 != 0)))
         })
     }
 

@@ -474,6 +474,22 @@ pub fn from_source<S: Read + Send + 'static>(
     Ok(reader)
 }
 
+/// Reads every event into memory, `(camera, event)` in file order.
+pub fn read_all(reader: &mut dyn EventReader) -> Result<Vec<(u8, Event)>, ReadError> {
+    let mut batch = Batch::default();
+    let mut out = Vec::new();
+    while reader.read_batch(&mut batch)? {
+        out.extend(
+            batch
+                .cameras
+                .iter()
+                .copied()
+                .zip(batch.events.iter().copied()),
+        );
+    }
+    Ok(out)
+}
+
 /// Reads every event of `camera` into memory.
 pub fn read_camera(reader: &mut dyn EventReader, camera: u8) -> Result<Vec<Event>, ReadError> {
     let mut batch = Batch::default();

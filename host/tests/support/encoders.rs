@@ -59,10 +59,12 @@ pub fn aedat2_header(chip: Option<&str>, end_marker: bool) -> Vec<u8> {
     h.into_bytes()
 }
 
-/// DAVIS polarity address: y_raw (bottom origin) in bits 22–30, x in 12–21, ON in bit 11.
-pub fn davis_addr(x: u16, y_top: u16, on: bool, height: u16) -> u32 {
-    let y_raw = u32::from(height - 1 - y_top);
-    (y_raw << 22) | (u32::from(x) << 12) | (u32::from(on) << 11)
+/// DAVIS polarity address of the picture's pixel `(x, y_top)` (top-left origin, jAER's
+/// orientation): y_raw = height − 1 − y_top (bottom origin) in bits 22–30, x_raw = width − 1 − x
+/// in 12–21 (jAER decodes `x = sx1 − x_raw`), ON in bit 11.
+pub fn davis_addr(x: u16, y_top: u16, on: bool, width: u16, height: u16) -> u32 {
+    let (x_raw, y_raw) = (u32::from(width - 1 - x), u32::from(height - 1 - y_top));
+    (y_raw << 22) | (x_raw << 12) | (u32::from(on) << 11)
 }
 
 /// DVS128 address (top-left `x`, `y_top`): x_raw = 127 - x in bits 1–7, the row from the
@@ -86,7 +88,11 @@ pub fn aedat2_davis346(events: &[Ev], dhp19: bool) -> Vec<u8> {
     let mut out = aedat2_header(Some(chip), true);
     for e in events {
         let cam = if dhp19 { u32::from(e.cam) } else { 0 };
-        aedat2_record(&mut out, davis_addr(e.x, e.y, e.on, 260) | cam, e.t as u32);
+        aedat2_record(
+            &mut out,
+            davis_addr(e.x, e.y, e.on, 346, 260) | cam,
+            e.t as u32,
+        );
     }
     out
 }
