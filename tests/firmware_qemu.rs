@@ -336,6 +336,12 @@ fn build_firmware_with(cpu: Cpu, feature: Option<&str>) -> PathBuf {
     if let Some(f) = feature {
         target = target.join(f);
     }
+    // The three images build at once (the tests run in parallel) into nested target folders.
+    // Cargo creates a missing target folder as a temporary one renamed into place, and the M7
+    // build's rename of `firmware/target` could replace the folder in which the other builds
+    // had just made theirs ("No such file or directory"); folders that already exist are used
+    // as they are.
+    std::fs::create_dir_all(&target).expect("the firmware's target folder");
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let mut cmd = Command::new(cargo);
     // The firmware's .cargo/config.toml (target, linker scripts, CPU) applies from its folder;
