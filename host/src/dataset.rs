@@ -117,7 +117,8 @@ pub struct Source {
     /// Ground truth, mm, one pose per 10 ms from `gt_t0_us` (empty: no person).
     pub gt: Vec<[[f32; 3]; JOINTS]>,
     /// Time of the first ground-truth sample on the events' clock, µs; `None`: the first
-    /// event's time (DHP19's fallback when a file has no trigger events).
+    /// event's time. For a real DHP19 recording `build` sets it from the recording's trigger
+    /// events ([`dhp19_span`]).
     pub gt_t0_us: Option<i64>,
     /// Subject id.
     pub subject: i64,
@@ -211,10 +212,10 @@ pub fn sources(dir: &Path) -> Result<Vec<Source>> {
 /// by [`crate::dhp19::mat`], joints by name). DHP19's split: subjects 1–12 train, 13–17 test.
 ///
 /// Pixels are where DHP19's own code puts them (x = 345 − x_raw, y = 259 − y_raw: see
-/// [`crate::io::aedat2`]), so labels projected with DHP19's P matrices land on the events. Not
-/// verified against real DHP19 files (none are available to this project): the Vicon clock
-/// starts at the first event (DHP19's own fallback; its code aligns with trigger events, which
-/// the AEDAT 2.0 reader skips). See the README.
+/// [`crate::io::aedat2`]), so labels projected with DHP19's P matrices land on the events, and
+/// [`build`] starts each recording's Vicon clock at its triggers as DHP19 does
+/// ([`dhp19_span`]). Not verified against real DHP19 files (none are available to this
+/// project). See the README.
 pub fn dhp19_sources(dir: &Path) -> Result<Vec<Source>> {
     let mut out = Vec::new();
     let mut names: Vec<PathBuf> = std::fs::read_dir(dir)
@@ -323,12 +324,42 @@ pub fn dhp19_filter(events: &mut Vec<(u8, Event)>, width: u16, height: u16) -> F
 
 /// All events of a multi-camera recording, `(camera, event)` in file order.
 pub fn read_events(path: &Path) -> Result<Vec<(u8, Event)>> {
+    read_recording(path).map(|(events, _)| events)
+}
+
+/// [`read_events`], and what the reader noted (the special events' times among it).
+pub fn read_recording(path: &Path) -> Result<(Vec<(u8, Event)>, io::ReadNotes)> {
     let opts = OpenOptions {
         format: Some(Format::Aedat2Dhp19),
         ..OpenOptions::default()
     };
     let mut reader = io::open_with(path, &opts)?;
-    io::read_all(reader.as_mut()).with_context(|| path.display().to_string())
+    let events = io::read_all(reader.as_mut()).with_context(|| path.display().to_string())?;
+    Ok((events, reader.notes()))
+}
+
+/// The stretch `(start, stop)` µs of a real DHP19 recording that its Vicon samples cover, as
+/// DHP19's `Generate_DHP19.m` decides it from the recording's special (trigger) events
+/// `specials`, its first and last event times and `gt_len` Vicon samples (`n = 10 ms · gt_len`):
+/// - none: `(first, last)` (DHP19's fallback);
+/// - 1, 2 or 4: the first trigger `s` ends the recording when it lies nearer the last event
+///   than the first (`(s − n, s)`), else starts it (`(s, s + n)`);
+/// - 3 or 5: `(first trigger, last trigger)`;
+/// - more: `None` (DHP19 skips such files as corrupt).
+///
+/// The Vicon clock starts at `start` (row 0); DHP19 keeps the events strictly inside.
+pub fn dhp19_span(specials: &[i64], first: i64, last: i64, gt_len: usize) -> Option<(i64, i64)> {
+    let n = gt_len as i64 * GT_PERIOD_US as i64;
+    match specials {
+        [] => Some((first, last)),
+        [s] | [s, _] | [s, _, _, _] => Some(if s - first > last - s {
+            (s - n, *s)
+        } else {
+            (*s, s + n)
+        }),
+        [s, _, e] | [s, _, _, _, e] => Some((*s, *e)),
+        _ => None,
+    }
 }
 
 /// Mean of the ground-truth samples whose time lies in `[t0, t1]` µs (the nearest sample when
@@ -642,11 +673,28 @@ pub fn build(
             .par_iter()
             .enumerate()
             .map(|(i, s)| {
-                let mut events = read_events(&s.events)?;
+                let (mut events, notes) = read_recording(&s.events)?;
+                // A real recording's Vicon clock starts where DHP19's code starts it (its
+                // triggers), and only the events it covers count; before any filtering.
+                let mut aligned: std::borrow::Cow<'_, Source> = std::borrow::Cow::Borrowed(s);
+                if s.real {
+                    let (first, last) = match (events.first(), events.last()) {
+                        (Some(f), Some(l)) => (f.1.t, l.1.t),
+                        _ => (0, 0),
+                    };
+                    match dhp19_span(&notes.special_times, first, last, s.gt.len()) {
+                        Some((start, stop)) => {
+                            events.retain(|(_, e)| e.t > start && e.t < stop);
+                            aligned.to_mut().gt_t0_us = Some(start);
+                        }
+                        // DHP19 skips files with more than five triggers as corrupt.
+                        None => events.clear(),
+                    }
+                }
                 if opts.dhp19_filters.unwrap_or(s.real) {
                     dhp19_filter(&mut events, crate::dhp19::WIDTH, crate::dhp19::HEIGHT);
                 }
-                let r = windows(s, &events, &cameras, opts, c * chunk + i);
+                let r = windows(&aligned, &events, &cameras, opts, c * chunk + i);
                 progress(
                     done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
                     sources.len(),

@@ -631,7 +631,7 @@ fn real_dhp19_files_are_read_with_their_vicon_mat() {
     let opts = SimOptions {
         seed: 9,
         subjects: 1,
-        seconds: 0.3,
+        seconds: 1.2,
         movements: vec![Movement::Squats],
         split: Split::Train,
     };
@@ -658,6 +658,85 @@ fn real_dhp19_files_are_read_with_their_vicon_mat() {
     assert_eq!(s.gt_t0_us, None);
     // A directory with neither kind of recording is an error, not an empty dataset.
     assert!(dataset::sources(dir.path()).is_err());
+
+    // A trigger 10 ms in starts the Vicon clock, as in DHP19's files: no window before it,
+    // and the labels follow the trigger's clock (the windows differ from the fallback's).
+    let build = |name: &str| {
+        let out = dir.path().join(name);
+        let dopts = DatasetOptions {
+            label: LabelRule::Mean,
+            points: 256,
+            cameras: vec![2, 3],
+            split: SplitFilter::All,
+            seed: 1,
+            dhp19_filters: Some(false),
+            person_free: false,
+        };
+        dataset::build(&real, &out, &dopts, |_, _| {}).unwrap();
+        Dataset::open(&out).unwrap()
+    };
+    let fallback = build("ds-fallback");
+    let path = real.join("S14_2_3.aedat");
+    let bytes = std::fs::read(&path).unwrap();
+    let end = b"#End Of ASCII Header\r\n";
+    let body = bytes.windows(end.len()).position(|w| w == end).unwrap() + end.len();
+    let ts = |i: usize| {
+        u32::from_be_bytes(
+            bytes[body + 8 * i + 4..body + 8 * i + 8]
+                .try_into()
+                .unwrap(),
+        )
+    };
+    let trigger = ts(0) + 10_000;
+    let at = (0..(bytes.len() - body) / 8)
+        .find(|&i| ts(i) >= trigger)
+        .unwrap();
+    let mut with = bytes[..body + 8 * at].to_vec();
+    with.extend_from_slice(&0x400u32.to_be_bytes());
+    with.extend_from_slice(&trigger.to_be_bytes());
+    with.extend_from_slice(&bytes[body + 8 * at..]);
+    std::fs::write(&path, with).unwrap();
+    let triggered = build("ds-trigger");
+    assert!(!triggered.is_empty());
+    assert!(
+        triggered.span_us.iter().all(|s| s[0] > i64::from(trigger)),
+        "a window starts before the trigger"
+    );
+    assert!(fallback.span_us.iter().any(|s| s[0] < i64::from(trigger)));
+}
+
+/// DHP19's `Generate_DHP19.m` decides where a recording's Vicon clock starts from its special
+/// (trigger) events; `dhp19_span` follows it case by case.
+#[test]
+fn dhp19_span_follows_dhp19s_trigger_cases() {
+    use evpose_host::dataset::dhp19_span;
+    let (first, last, len) = (1_000, 9_001_000, 500); // n = 500 samples = 5 s
+    let n = 5_000_000;
+    // No trigger: the first and the last event (DHP19's fallback).
+    assert_eq!(dhp19_span(&[], first, last, len), Some((first, last)));
+    // One trigger near the start starts the recording; near the end, it ends it.
+    assert_eq!(
+        dhp19_span(&[2_000], first, last, len),
+        Some((2_000, 2_000 + n))
+    );
+    assert_eq!(
+        dhp19_span(&[9_000_000], first, last, len),
+        Some((9_000_000 - n, 9_000_000))
+    );
+    // Two or four: the first one decides, the same way.
+    assert_eq!(
+        dhp19_span(&[2_000, 9_000_000], first, last, len),
+        Some((2_000, 2_000 + n))
+    );
+    assert_eq!(
+        dhp19_span(&[8_000_000, 1, 2, 3], first, last, len),
+        Some((8_000_000 - n, 8_000_000))
+    );
+    // Three or five: the first and the last.
+    assert_eq!(dhp19_span(&[5, 6, 7], first, last, len), Some((5, 7)));
+    assert_eq!(dhp19_span(&[5, 6, 7, 8, 9], first, last, len), Some((5, 9)));
+    // More: skipped, as DHP19 skips its corrupt files.
+    assert_eq!(dhp19_span(&[1; 6], first, last, len), None);
 }
 
 #[test]

@@ -392,6 +392,25 @@ fn dhp19_addresses_decode_as_dhp19_and_jaer_decode_them() {
     assert_eq!(got, want);
 }
 
+/// DAVIS special (trigger) events are skipped as events but their times kept, on the events'
+/// clock: DHP19 starts its Vicon clock at one of them.
+#[test]
+fn dhp19_trigger_times_are_kept() {
+    let mut f = aedat2_header(
+        Some("ch.unizh.ini.jaer.chip.multicamera.MultiDavis346BCameraChip"),
+        true,
+    );
+    aedat2_record(&mut f, davis_addr(1, 1, true, 346, 260), 100);
+    aedat2_record(&mut f, 0x400 | 2, 150); // a special event (bit 10), camera bits set
+    aedat2_record(&mut f, davis_addr(2, 2, false, 346, 260) | 1, 200);
+    aedat2_record(&mut f, 0x8000_0400, 250); // an APS/IMU sample with bit 10: not a trigger
+    aedat2_record(&mut f, 0x400, 300);
+    let d = decode(Dec::Aedat2, &f).unwrap();
+    assert_eq!(d.events.len(), 2);
+    assert_eq!(d.notes.special_times, [150, 300]);
+    assert_eq!(d.notes.skipped_records, 3);
+}
+
 #[test]
 fn aedat2_timestamps_unwrap() {
     let mut f = aedat2_header(Some("DAVIS346B"), true);

@@ -267,6 +267,7 @@ impl<R: Read> Aedat2Reader<R> {
                 notes: &mut self.notes,
                 batch,
                 base,
+                davis: !matches!(self.sensor, Sensor::Dvs128),
             };
             match self.sensor {
                 Sensor::Davis(w, h) => d.davis::<false>(records, w, h)?,
@@ -351,6 +352,8 @@ struct Decoder<'a> {
     batch: &'a mut Batch,
     /// File offset of the first record.
     base: u64,
+    /// A DAVIS layout: its special events' times are kept ([`ReadNotes::special_times`]).
+    davis: bool,
 }
 
 /// Why a record's address is refused.
@@ -377,6 +380,12 @@ impl Bad {
 /// A record's address decoded: an event's `(camera, x, y, on)`, or `None` for a record that is
 /// not a polarity event (skipped and counted).
 type Address = Result<Option<(u8, u16, u16, bool)>, Bad>;
+
+/// A DAVIS special (trigger) event: bit 31 (APS/IMU) clear, bit 10 set (DHP19's
+/// `ImportAedatDataVersion1or2.m`: `~apsOrImuLogical & signalOrSpecialLogical`).
+fn davis_special(addr: u32) -> bool {
+    addr & 0x8000_0400 == 0x400
+}
 
 impl Decoder<'_> {
     /// DAVIS records (DHP19's with `DHP19`: address bits 0-3 carry the camera).
@@ -452,9 +461,18 @@ impl Decoder<'_> {
             let [a0, a1, a2, a3, t0, t1, t2, t3] = *r;
             let ts = u64::from(u32::from_be_bytes([t0, t1, t2, t3]));
             let offset = || self.base + (i * RECORD_BYTES) as u64;
-            let (camera, x, y, on) = match address(u32::from_be_bytes([a0, a1, a2, a3])) {
+            let addr = u32::from_be_bytes([a0, a1, a2, a3]);
+            let (camera, x, y, on) = match address(addr) {
                 Ok(Some(e)) => e,
                 Ok(None) => {
+                    // A DAVIS trigger's time, on the events' clock (DVS128 has no such bit).
+                    if self.davis && davis_special(addr) {
+                        if let Some(t) = forward.unwrap(self.time, ts) {
+                            if self.notes.special_times.len() < super::MAX_SPECIAL_TIMES {
+                                self.notes.special_times.push(t);
+                            }
+                        }
+                    }
                     skipped += 1;
                     continue;
                 }

@@ -308,7 +308,14 @@ pub struct ReadNotes {
     pub timestamp_wraps: u64,
     /// Decisions taken where the file is ambiguous (sensor model, time unit, …).
     pub assumptions: Vec<String>,
+    /// Times (µs, on the events' clock) of the first [`MAX_SPECIAL_TIMES`] AEDAT 2.0 DAVIS
+    /// special (trigger) events, in file order: DHP19 starts its Vicon clock at one of them
+    /// (`dataset::dhp19_span`). Counted in [`ReadNotes::skipped_records`] too.
+    pub special_times: Vec<i64>,
 }
+
+/// Most special-event times [`ReadNotes::special_times`] keeps (DHP19's files have 0 to 5).
+pub const MAX_SPECIAL_TIMES: usize = 64;
 
 /// What a recording says about one of its cameras.
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]

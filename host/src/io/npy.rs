@@ -4,7 +4,7 @@
 //! seconds or milliseconds would otherwise round to a handful of microseconds), unless
 //! `--time-unit` ([`super::OpenOptions::time_unit`]) states the unit; the times are then
 //! scaled to microseconds and rounded half away from zero. An array whose first events mostly
-//! go back in time is refused too ([`super::OrderCheck`]): its columns are in another order.
+//! go back in time is refused too (`io::OrderCheck`): its columns are in another order.
 
 use std::io::Read;
 
