@@ -12,6 +12,19 @@ use evpose_host::simulate::{self, dhp19_cameras, SimOptions, Split};
 use evpose_host::summary::summarize_with;
 use evpose_sim::Movement;
 
+/// Mean Label windows of 256 points from the front cameras, seed 1.
+fn mean_options(dhp19_filters: Option<bool>) -> DatasetOptions {
+    DatasetOptions {
+        label: LabelRule::Mean,
+        points: 256,
+        cameras: vec![2, 3],
+        split: SplitFilter::All,
+        seed: 1,
+        dhp19_filters,
+        person_free: false,
+    }
+}
+
 fn pose(v: f32) -> [[f32; 3]; JOINTS] {
     [[v, 2.0 * v, 1000.0 + v]; JOINTS]
 }
@@ -491,15 +504,7 @@ fn a_dataset_round_trips_through_its_files() {
     };
     simulate::generate(&sim, &opts, |_, _| {}).unwrap();
     let out = dir.path().join("ds");
-    let dopts = DatasetOptions {
-        label: LabelRule::Mean,
-        points: 256,
-        cameras: vec![2, 3],
-        split: SplitFilter::All,
-        seed: 1,
-        dhp19_filters: None,
-        person_free: false,
-    };
+    let dopts = mean_options(None);
     let m = dataset::build(&sim, &out, &dopts, |_, _| {}).unwrap();
     let ds = Dataset::open(&out).unwrap();
     assert_eq!(ds.len() as u64, m.samples);
@@ -663,16 +668,7 @@ fn real_dhp19_files_are_read_with_their_vicon_mat() {
     // and the labels follow the trigger's clock (the windows differ from the fallback's).
     let build = |name: &str| {
         let out = dir.path().join(name);
-        let dopts = DatasetOptions {
-            label: LabelRule::Mean,
-            points: 256,
-            cameras: vec![2, 3],
-            split: SplitFilter::All,
-            seed: 1,
-            dhp19_filters: Some(false),
-            person_free: false,
-        };
-        dataset::build(&real, &out, &dopts, |_, _| {}).unwrap();
+        dataset::build(&real, &out, &mean_options(Some(false)), |_, _| {}).unwrap();
         Dataset::open(&out).unwrap()
     };
     let fallback = build("ds-fallback");
