@@ -50,13 +50,17 @@ pub fn decompression_limit(input_len: usize) -> usize {
 }
 
 /// 0-based row of the `XYZPOS` fields that holds the Vicon sample for an event at `t_us`, given
-/// the recording's start time `start_us` (the DAVIS "special" trigger event), both in µs:
-/// `floor((t_us - start_us) / 10_000)`; `None` before the start. DHP19's MATLAB code uses the
-/// 1-based `k = floor((t - startTime) * 0.0001) + 1`, the same row. The caller must still check
-/// the row against `T` (DHP19 stops cutting windows once it passes the last sample).
+/// the recording's start time `start_us` (the DAVIS "special" trigger event), both in µs: the
+/// nearest sample, `round((t_us − start_us) / 10_000)` (halves up); `None` before the start.
+/// DHP19's MATLAB code writes the 1-based `k = floor((t - startTime) * 0.0001) + 1`, but its
+/// times are int64: MATLAB's int64 × double rounds to the nearest integer before the `floor`,
+/// which then does nothing, so its row is the nearest one (the `floor` reading, used here
+/// through stop 42, was up to half a sample early). The caller must still check the row against
+/// `T` (DHP19 stops cutting windows once it passes the last sample).
 pub fn vicon_index(t_us: u64, start_us: u64) -> Option<usize> {
-    let d = t_us.checked_sub(start_us)? / VICON_PERIOD_US;
-    usize::try_from(d).ok()
+    let d = t_us.checked_sub(start_us)?;
+    usize::try_from(d / VICON_PERIOD_US + u64::from(d % VICON_PERIOD_US >= VICON_PERIOD_US / 2))
+        .ok()
 }
 
 /// Where in the input something was found.
@@ -1632,9 +1636,18 @@ mod tests {
 
     #[test]
     fn vicon_index_matches_dhp19() {
+        // MATLAB: int64(d) * 0.0001 rounds (halves away from zero), floor() keeps it.
         assert_eq!(vicon_index(1_000, 1_000), Some(0));
-        assert_eq!(vicon_index(1_000 + 9_999, 1_000), Some(0));
-        assert_eq!(vicon_index(1_000 + 10_000, 1_000), Some(1));
+        assert_eq!(vicon_index(1_000 + 4_999, 1_000), Some(0));
+        assert_eq!(vicon_index(1_000 + 5_000, 1_000), Some(1));
+        assert_eq!(vicon_index(1_000 + 9_999, 1_000), Some(1));
+        assert_eq!(vicon_index(1_000 + 14_999, 1_000), Some(1));
+        assert_eq!(vicon_index(1_000 + 15_000, 1_000), Some(2));
         assert_eq!(vicon_index(999, 1_000), None);
+        // u64::MAX ends in ...1615: below half a sample; no overflow in the rounding.
+        assert_eq!(
+            vicon_index(u64::MAX, 0),
+            usize::try_from(u64::MAX / 10_000).ok()
+        );
     }
 }
