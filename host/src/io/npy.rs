@@ -24,8 +24,9 @@ pub struct NpyReader<R> {
     rows: u64,
     /// A batch's rows, read in one block.
     rows_buf: Vec<[f64; 4]>,
-    /// The stated time unit, if any.
-    unit: Option<TimeUnit>,
+    /// Microseconds per unit of the time column, when `--time-unit` states its unit (worked
+    /// out once, not per row).
+    scale: Option<f64>,
     order: OrderCheck,
 }
 
@@ -59,19 +60,15 @@ impl<R: Read + Send + 'static> NpyReader<R> {
             rows_read: 0,
             rows,
             rows_buf: Vec::new(),
-            unit,
+            scale: unit.map(|u| 10f64.powi(u.exponent_to_us())),
             order: OrderCheck::default(),
         })
     }
 }
 
-/// Converts one `[x, y, t, p]` row, rejecting values that are not event fields: `t` in `unit`
-/// (scaled and rounded), or without one whole microseconds.
-pub fn event_from_row(
-    row: [f64; 4],
-    index: u64,
-    unit: Option<TimeUnit>,
-) -> Result<Event, ReadError> {
+/// Converts one `[x, y, t, p]` row, rejecting values that are not event fields: `t` times
+/// `scale` microseconds (rounded), or without a scale whole microseconds.
+pub fn event_from_row(row: [f64; 4], index: u64, scale: Option<f64>) -> Result<Event, ReadError> {
     let [x, y, t, p] = row;
     // An integer in 0..=65535 exactly when the saturating conversion gives it back (NaN, a
     // fraction or a value out of range does not); no `trunc` call (a library call on x86-64
@@ -86,16 +83,13 @@ pub fn event_from_row(
     };
     let x = coord(x).ok_or_else(|| bad("x", x))?;
     let y = coord(y).ok_or_else(|| bad("y", y))?;
-    let t_us = match unit {
-        Some(u) => t * 10f64.powi(u.exponent_to_us()),
-        None => t,
-    };
+    let t_us = scale.map_or(t, |s| t * s);
     // i64 µs; f64 holds integers exactly up to 2^53 µs (285 years).
     if !(t_us.is_finite() && t_us.abs() < 9.007_199_254_740_992e15) {
         return Err(bad("timestamp", t));
     }
     // Below 2^53 the truncation is exact: a fraction shows as a difference.
-    if unit.is_none() && (t as i64) as f64 != t {
+    if scale.is_none() && (t as i64) as f64 != t {
         return Err(ReadError::Corrupt {
             offset: 0,
             message: format!(
@@ -154,7 +148,7 @@ impl<R: Read + Send + 'static> EventReader for NpyReader<R> {
         batch.events.reserve(n);
         let mut result = Ok(());
         for &row in &self.rows_buf {
-            match event_from_row(row, self.rows_read, self.unit) {
+            match event_from_row(row, self.rows_read, self.scale) {
                 Ok(e) => batch.events.push(e),
                 Err(e) => {
                     result = Err(e);
