@@ -7,7 +7,7 @@
 //! core up: QEMU 7.2 aborts with "Lockup: can't escalate 3 to HardFault (current priority -1)",
 //! a board hangs until its watchdog fires, and neither says why.
 //!
-//! So the `HardFault` vector is six instructions of assembly that move the main stack pointer
+//! So the `HardFault` vector is eight instructions of assembly that move the main stack pointer
 //! back to the top of the stack region before any Rust runs, and pass the stack pointer of the
 //! fault on to [`hard_fault`]. The interrupted code never resumes (the handler exits), so
 //! overwriting its frames is harmless. What [`hard_fault`] prints:
