@@ -329,9 +329,7 @@ fn parse_line(
             )
         })?;
     let coord = |i: usize, what: &str| {
-        parse_decimal(fields[i])
-            .and_then(|d| d.scaled(0, true))
-            .and_then(|v| u16::try_from(v).ok())
+        whole_u16(fields[i])
             .ok_or_else(|| bad_line(at, line, &format!("{what} {:?} is not valid", field(i))))
     };
     let x = coord(c.x, "x")?;
@@ -379,14 +377,16 @@ fn is_value(field: &[u8]) -> bool {
     parse_decimal(field).is_some() || boolean(field).is_some()
 }
 
+/// A field holding a whole number 0..=65535 (`12.0` included): a coordinate.
+fn whole_u16(field: &[u8]) -> Option<u16> {
+    parse_decimal(field)
+        .and_then(|d| d.scaled(0, true))
+        .and_then(|v| u16::try_from(v).ok())
+}
+
 /// A line of exactly two integers 1..=65535: a sensor size `W H`.
 fn sensor_size(fields: &[&[u8]]) -> Option<(u16, u16)> {
-    let dim = |f: &[u8]| {
-        parse_decimal(f)
-            .and_then(|d| d.scaled(0, true))
-            .and_then(|v| u16::try_from(v).ok())
-            .filter(|&v| v > 0)
-    };
+    let dim = |f: &[u8]| whole_u16(f).filter(|&v| v > 0);
     match fields {
         [w, h] => Some((dim(w)?, dim(h)?)),
         _ => None,
