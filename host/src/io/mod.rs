@@ -245,6 +245,8 @@ pub(crate) struct OrderCheck {
     seen: usize,
     backwards: usize,
     last: Option<i64>,
+    /// The verdict is in (the first events counted, or the stream ended short of them).
+    judged: bool,
 }
 
 impl OrderCheck {
@@ -253,38 +255,28 @@ impl OrderCheck {
     /// Fewest events a verdict needs.
     const MIN_EVENTS: usize = 16;
 
-    /// Counts `events` (the stream's next ones) while judging; `columns` names the order the
-    /// format assumes, for the message.
+    /// Counts `events` (the stream's next ones) until the verdict; `columns` names the order
+    /// the format assumes, for the message.
     pub(crate) fn check(&mut self, events: &[Event], columns: &str) -> Result<(), ReadError> {
-        if self.seen >= Self::EVENTS {
+        if self.judged {
             return Ok(());
         }
         for e in events.iter().take(Self::EVENTS - self.seen) {
-            if self.last.is_some_and(|l| e.t < l) {
-                self.backwards += 1;
-            }
+            self.backwards += usize::from(self.last.is_some_and(|l| e.t < l));
             self.last = Some(e.t);
             self.seen += 1;
         }
-        // Judged once, when the window is full or the stream ended short of it (a batch
-        // shorter than it can hold).
-        let ended = events.len() < BATCH_EVENTS;
-        if (self.seen >= Self::EVENTS || ended)
-            && self.seen >= Self::MIN_EVENTS
-            && 4 * self.backwards > self.seen
-        {
-            let (b, n) = (self.backwards, self.seen);
-            self.seen = Self::EVENTS; // judged
+        // A batch shorter than a reader fills is the stream's last.
+        self.judged = self.seen >= Self::EVENTS || events.len() < BATCH_EVENTS;
+        if self.judged && self.seen >= Self::MIN_EVENTS && 4 * self.backwards > self.seen {
             return Err(ReadError::Corrupt {
                 offset: 0,
                 message: format!(
-                    "timestamps go backwards at {b} of the first {n} events: no recording is \
-                     out of order like that. Are the columns in another order than {columns}?"
+                    "timestamps go backwards at {} of the first {} events: no recording is \
+                     out of order like that. Are the columns in another order than {columns}?",
+                    self.backwards, self.seen
                 ),
             });
-        }
-        if self.seen >= Self::EVENTS || ended {
-            self.seen = Self::EVENTS;
         }
         Ok(())
     }
