@@ -32,6 +32,9 @@ minutes=${4:?MINUTES}
 shopt -s nullglob
 repo=$(cd "$(dirname "$0")/.." && pwd)
 py=${PYTHON:-python3}
+# The simulator's pixel model (README, "evpose sim"): v1 made the shipped models' data;
+# PIXEL_MODEL=v2 (the simulator's default) trains on the current one.
+pixel="--pixel-model ${PIXEL_MODEL:-v1}"
 mkdir -p "$work" "$out"
 cd "$work"
 t0=$SECONDS
@@ -43,7 +46,7 @@ nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader ||
 "available", torch.cuda.is_available(), "onnx", onnx.__version__)'
 
 # The validation subject first: the smoke run trains on it.
-"$evpose" sim --out rec-val --seed 500 --subjects 1 --seconds 1 --movements all --split test
+"$evpose" sim --out rec-val --seed 500 --subjects 1 --seconds 1 --movements all --split test $pixel
 "$evpose" dataset --recordings rec-val --out ds-val --split test
 
 trainpy() { "$py" "$repo/train/train.py" --quiet --threads 4 "$@"; }
@@ -80,12 +83,12 @@ tail -n 3 smoke/*.log
 if awk -v m="$minutes" 'BEGIN { exit !(m == 0) }'; then stamp "smoke run passed"; exit 0; fi
 
 stamp "training data"
-"$evpose" sim --out rec-train --seed 1 --subjects 6 --seconds 2 --movements all --split train
-"$evpose" sim --out rec-train2 --seed 2 --subjects 12 --seconds 2 --movements all --split train
+"$evpose" sim --out rec-train --seed 1 --subjects 6 --seconds 2 --movements all --split train $pixel
+"$evpose" sim --out rec-train2 --seed 2 --subjects 12 --seconds 2 --movements all --split train $pixel
 "$evpose" dataset --recordings rec-train --out ds-train --split train
 "$evpose" dataset --recordings rec-train2 --out ds-train2 --split train
 "$evpose" sim --out np-train --seed 4000 --subjects 24 --seconds 2 --movements no-person \
-  --split train
+  --split train $pixel
 "$evpose" dataset --recordings np-train --out ds-np --split train --person-free
 rm -rf rec-train rec-train2 np-train
 

@@ -17,6 +17,9 @@ work=${1:?usage: train/recipe.sh WORKDIR [STEP...]}
 shift
 steps=${*:-data mcu paper dgcnn point-transformer quantize eval}
 py=${PYTHON:-python3}
+# The simulator's pixel model (README, "evpose sim"): v1 made the shipped models' data;
+# PIXEL_MODEL=v2 (the simulator's default) remakes everything with the current one.
+pixel="--pixel-model ${PIXEL_MODEL:-v1}"
 evpose=$repo/target/release/evpose
 [ -x "$evpose" ] || (cd "$repo" && cargo build --release --bin evpose)
 mkdir -p "$work"
@@ -36,14 +39,16 @@ for step in $steps; do
   data)
     # Train: 6 subjects (seed 1) + 12 (seed 2); validation: 1 subject, 1 s (seed 500); test:
     # 1 subject (seed 1000), every movement for 2 s, the held-out set of every README figure.
-    "$evpose" sim --out rec-train --seed 1 --subjects 6 --seconds 2 --movements all --split train
-    "$evpose" sim --out rec-train2 --seed 2 --subjects 12 --seconds 2 --movements all --split train
-    "$evpose" sim --out rec-val --seed 500 --subjects 1 --seconds 1 --movements all --split test
-    "$evpose" sim --out rec-test --seed 1000 --subjects 1 --seconds 2 --movements all --split test
+    # The shipped models were trained and measured on the simulator's V1 pixel model: $pixel
+    # pins it unless PIXEL_MODEL says otherwise (then rerun every step, the GPU ones included).
+    "$evpose" sim --out rec-train --seed 1 --subjects 6 --seconds 2 --movements all --split train $pixel
+    "$evpose" sim --out rec-train2 --seed 2 --subjects 12 --seconds 2 --movements all --split train $pixel
+    "$evpose" sim --out rec-val --seed 500 --subjects 1 --seconds 1 --movements all --split test $pixel
+    "$evpose" sim --out rec-test --seed 1000 --subjects 1 --seconds 2 --movements all --split test $pixel
     # Scenes without a person (bouncing balls, a spinning stick) for the MCU model: 24 "subjects"
     # of seed 4000, written with --person-free (no label; train.py pulls them to uniform).
     "$evpose" sim --out np-train --seed 4000 --subjects 24 --seconds 2 --movements no-person \
-      --split train
+      --split train $pixel
     "$evpose" dataset --recordings rec-train --out ds-train --split train
     "$evpose" dataset --recordings rec-train2 --out ds-train2 --split train
     "$evpose" dataset --recordings np-train --out ds-np --split train --person-free

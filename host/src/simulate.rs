@@ -3,7 +3,8 @@
 //! One recording per subject and movement, each T seconds, written into a directory:
 //!
 //! ```text
-//! DIR/manifest.json                     what was generated (seed, subjects, split, recordings)
+//! DIR/manifest.json                     what was generated (seed, subjects, split, pixel model,
+//!                                       recordings)
 //! DIR/calibration/P1..P4.npy, camera_positions.npy   DHP19's calibration (the rig simulated)
 //! DIR/S<seed>-<subject>_<movement>.aedat   AEDAT 2.0 in DHP19's layout (camera id in address
 //!                                          bits 0-3): the same readers as real DHP19 files
@@ -20,7 +21,7 @@ use std::sync::Mutex;
 
 use anyhow::{bail, Context, Result};
 use evpose_core::geometry::Camera;
-use evpose_sim::{simulate_many, Movement, Recording, RecordingSpec};
+use evpose_sim::{simulate_many, Movement, PixelModel, Recording, RecordingSpec};
 use serde::{Deserialize, Serialize};
 
 use crate::{array, dhp19};
@@ -48,6 +49,8 @@ pub struct SimOptions {
     pub movements: Vec<Movement>,
     /// The split every recording of this set belongs to.
     pub split: Split,
+    /// The simulator's pixel model (`evpose_sim::PixelModel`; V2 unless reproducing V1 data).
+    pub pixel: PixelModel,
 }
 
 /// One generated recording, as listed in the manifest.
@@ -82,8 +85,16 @@ pub struct SimManifest {
     pub calibration: String,
     /// Ground-truth rate, Hz.
     pub gt_hz: f64,
+    /// The pixel model's version (`v1`, `v2`); manifests written before V2 existed lack it and
+    /// read as `v1`.
+    #[serde(default = "pixel_v1")]
+    pub pixel_model: String,
     /// The recordings, in generation order.
     pub recordings: Vec<RecordingEntry>,
+}
+
+fn pixel_v1() -> String {
+    PixelModel::V1.name().into()
 }
 
 /// Name of the manifest file in a generated directory.
@@ -130,6 +141,7 @@ pub fn generate(
                 subject,
                 movement,
                 seconds: opts.seconds,
+                pixel: opts.pixel,
             })
         })
         .collect();
@@ -154,6 +166,7 @@ pub fn generate(
         split: opts.split,
         calibration: "calibration".into(),
         gt_hz: evpose_sim::recording::GT_HZ,
+        pixel_model: opts.pixel.name().into(),
         recordings,
     };
     let path = out.join(MANIFEST);
@@ -261,5 +274,31 @@ mod movement_tests {
         assert_eq!(super::parse_movements("squats, hop-left").unwrap().len(), 2);
         let err = super::parse_movements("squats,squats").unwrap_err();
         assert_eq!(err.to_string(), "movement squats is listed twice");
+    }
+}
+
+#[cfg(test)]
+mod manifest_tests {
+    use super::*;
+
+    #[test]
+    fn a_manifest_without_a_pixel_model_reads_as_v1() {
+        let m = SimManifest {
+            generator: "evpose sim".into(),
+            seed: 1,
+            split: Split::Train,
+            calibration: "calibration".into(),
+            gt_hz: 100.0,
+            pixel_model: "v2".into(),
+            recordings: Vec::new(),
+        };
+        let mut json: serde_json::Value = serde_json::to_value(&m).unwrap();
+        assert_eq!(
+            serde_json::from_value::<SimManifest>(json.clone()).unwrap(),
+            m
+        );
+        json.as_object_mut().unwrap().remove("pixel_model");
+        let old: SimManifest = serde_json::from_value(json).unwrap();
+        assert_eq!(old.pixel_model, "v1");
     }
 }

@@ -10,7 +10,7 @@ use evpose_host::dataset::{
 use evpose_host::eval;
 use evpose_host::simulate::{self, dhp19_cameras, SimOptions, Split};
 use evpose_host::summary::summarize_with;
-use evpose_sim::Movement;
+use evpose_sim::{Movement, PixelModel};
 
 /// Mean Label windows of 256 points from the front cameras, seed 1.
 fn mean_options(dhp19_filters: Option<bool>) -> DatasetOptions {
@@ -29,6 +29,26 @@ fn pose(v: f32) -> [[f32; 3]; JOINTS] {
     [[v, 2.0 * v, 1000.0 + v]; JOINTS]
 }
 
+/// The shipped models and the bundled clip were made with the V1 pixel model; `evpose sim
+/// --pixel-model v1` (what `train/recipe.sh` runs) must keep making the same bytes.
+#[test]
+fn the_v1_pixel_model_remakes_the_bundled_clip_byte_for_byte() {
+    let dir = tempfile::tempdir().unwrap();
+    let opts = SimOptions {
+        seed: 4242,
+        subjects: 1,
+        seconds: 2.0,
+        movements: vec![Movement::SideKick],
+        split: Split::Test,
+        pixel: PixelModel::V1,
+    };
+    let m = simulate::generate(dir.path(), &opts, |_, _| {}).unwrap();
+    assert_eq!(m.pixel_model, "v1");
+    let file = |name: &str| std::fs::read(dir.path().join(name)).unwrap();
+    assert!(file("S4242-00_side-kick.aedat") == evpose_host::assets::CLIP);
+    assert!(file("S4242-00_side-kick.gt.npy") == evpose_host::assets::CLIP_GT);
+}
+
 #[test]
 fn simulated_recordings_read_back_with_their_per_camera_counts() {
     let dir = tempfile::tempdir().unwrap();
@@ -38,6 +58,7 @@ fn simulated_recordings_read_back_with_their_per_camera_counts() {
         seconds: 0.25,
         movements: vec![Movement::JumpingJacks, Movement::NoPerson],
         split: Split::Test,
+        pixel: PixelModel::V2,
     };
     let m = simulate::generate(dir.path(), &opts, |_, _| {}).unwrap();
     assert_eq!(m.recordings.len(), 2);
@@ -501,6 +522,7 @@ fn a_dataset_round_trips_through_its_files() {
         seconds: 0.6,
         movements: vec![Movement::JumpingJacks],
         split: Split::Train,
+        pixel: PixelModel::V2,
     };
     simulate::generate(&sim, &opts, |_, _| {}).unwrap();
     let out = dir.path().join("ds");
@@ -639,6 +661,7 @@ fn real_dhp19_files_are_read_with_their_vicon_mat() {
         seconds: 1.2,
         movements: vec![Movement::Squats],
         split: Split::Train,
+        pixel: PixelModel::V2,
     };
     let m = simulate::generate(&sim, &opts, |_, _| {}).unwrap();
     let gt = simulate::read_gt(&sim.join(m.recordings[0].gt.as_ref().unwrap())).unwrap();

@@ -19,7 +19,7 @@
 //!
 //! ```
 //! use evpose_core::geometry::Camera;
-//! use evpose_sim::{simulate, Movement, RecordingSpec};
+//! use evpose_sim::{simulate, Movement, PixelModel, RecordingSpec};
 //!
 //! // Four cameras 3 m from the origin, 2 m up, looking at (0, 0, 900) (f = 340 px).
 //! let cam = |x: f64, y: f64| {
@@ -37,7 +37,13 @@
 //!     Camera::new(p, c, 346, 260).unwrap()
 //! };
 //! let cameras = [cam(2500.0, 0.0), cam(-2500.0, 0.0), cam(-1800.0, -2000.0), cam(1800.0, -2000.0)];
-//! let spec = RecordingSpec { seed: 1, subject: 0, movement: Movement::JumpingJacks, seconds: 0.3 };
+//! let spec = RecordingSpec {
+//!     seed: 1,
+//!     subject: 0,
+//!     movement: Movement::JumpingJacks,
+//!     seconds: 0.3,
+//!     pixel: PixelModel::V2,
+//! };
 //! let rec = simulate(&spec, &cameras);
 //! assert_eq!(rec.gt_mm.len(), 30);
 //! assert!(rec.events.windows(2).all(|w| w[0].1.t <= w[1].1.t));
@@ -60,5 +66,5 @@ mod v3;
 pub use aedat2::write_dhp19;
 pub use body::{Subject, JOINTS, JOINT_NAMES};
 pub use motion::Movement;
-pub use pixel::SensorParams;
+pub use pixel::{PixelModel, SensorParams};
 pub use recording::{simulate, simulate_many, Recording, RecordingSpec};

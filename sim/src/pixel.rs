@@ -6,8 +6,20 @@
 //! level `m` and ON/OFF thresholds `C±` with per-pixel mismatch fixed for the recording. Between
 //! two renders the filtered level moves linearly; every crossing of `m + k·C+` (or `m − k·C−`)
 //! is an event, timestamped by linear interpolation to the crossing, and moves `m` to the
-//! crossed level. An event within the refractory period of the pixel's previous one is dropped
-//! together with the rest of that step's crossings (the pixel catches up later, rate-limited).
+//! crossed level. A crossing within the refractory period of the pixel's previous event is
+//! held, as a DVS pixel holds it while its reset lasts: it fires when the period ends, if the
+//! level is still beyond it then (a pixel behind a large change catches up at the refractory
+//! rate). Pixels whose photoreceptor has not settled, or that hold a crossing, keep being
+//! updated after the image stops changing there, until they are at rest.
+//!
+//! # Versions ([`PixelModel`])
+//! [`PixelModel::V2`], above, is the default. [`PixelModel::V1`] is the model the shipped models'
+//! training and test data were made with (kept so that `train/recipe.sh` reproduces them): a
+//! crossing held by the refractory period was retried only at the next render step, so it fired
+//! at that step's start (render steps are up to 4 ms: in a camera with a long refractory period
+//! many events shared a few timestamps), and a pixel was updated for 20 ms after the image last
+//! changed there, settled or not (a dim pixel's photoreceptor, whose time constant reaches
+//! 10 ms, could freeze before its last events).
 //!
 //! Noise: leak drifts `m` down by `leak · C+` per second (ON events at about `leak` Hz on a
 //! static pixel, random phase: `m` starts a uniform fraction of `C+` below `L`); shot noise is
@@ -31,6 +43,36 @@ use evpose_core::Event;
 
 use crate::render::Rect;
 use crate::rng::{tag, Rng};
+
+/// Which version of the pixel model a recording uses (module docs, "Versions").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum PixelModel {
+    /// The model of the shipped models' data: held crossings fire at the next render step's
+    /// start, pixels are updated for 20 ms after their image last changed.
+    V1,
+    /// Held crossings fire when the refractory period ends; pixels are updated until they are
+    /// at rest.
+    #[default]
+    V2,
+}
+
+impl PixelModel {
+    /// Every version, oldest first.
+    pub const ALL: [Self; 2] = [Self::V1, Self::V2];
+
+    /// The version's name (`v1`, `v2`), as manifests and the CLI write it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::V1 => "v1",
+            Self::V2 => "v2",
+        }
+    }
+
+    /// The version named `name` ([`PixelModel::name`]).
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|m| m.name() == name)
+    }
+}
 
 /// DVS parameters of one camera for one recording.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -104,7 +146,24 @@ pub struct Sensor {
     last_event: Vec<f64>,
     /// Time up to which the pixel has been advanced, µs.
     clock: Vec<f64>,
+    /// The pixel model's version.
+    model: PixelModel,
+    /// Pixels not at rest after their last update ([`PixelModel::V2`]).
+    unsettled: Vec<u32>,
+    /// Whether each pixel is in `unsettled`.
+    live: Vec<bool>,
     rng: Rng,
+}
+
+/// One render step's constants.
+struct Step {
+    /// Start and end, µs.
+    t0: f64,
+    t1: f64,
+    /// `2π f_c Δt` at full brightness.
+    w_full: f32,
+    /// Leak drift over the step, in units of the ON threshold.
+    drift_rate: f32,
 }
 
 impl Sensor {
@@ -112,6 +171,7 @@ impl Sensor {
     /// `(seed, index, stream)` seeds its mismatch and noise.
     pub fn new(
         params: SensorParams,
+        model: PixelModel,
         image: &[f32],
         width: usize,
         seed: u64,
@@ -144,6 +204,9 @@ impl Sensor {
             memory,
             last_event: vec![f64::NEG_INFINITY; n],
             clock: vec![0.0; n],
+            model,
+            unsettled: Vec::new(),
+            live: vec![false; n],
             rng,
         }
     }
@@ -168,11 +231,26 @@ impl Sensor {
         let period = 1e6 / rate;
         let mut fired = 0u32;
         while te < t {
-            if te - self.last_event[i] >= self.params.refractory_us {
-                out.push(self.event(i, te, true));
-                self.last_event[i] = te;
-                fired += 1;
+            if te - self.last_event[i] < self.params.refractory_us {
+                match self.model {
+                    // V1 skipped the event.
+                    PixelModel::V1 => {
+                        te += period;
+                        continue;
+                    }
+                    // Held until the refractory period ends (fired then, without testing the
+                    // period again: `(a + b) − a` may round below `b`).
+                    PixelModel::V2 => {
+                        te = self.last_event[i] + self.params.refractory_us;
+                        if te >= t {
+                            break;
+                        }
+                    }
+                }
             }
+            out.push(self.event(i, te, true));
+            self.last_event[i] = te;
+            fired += 1;
             te += period;
         }
         self.memory[i] =
@@ -190,72 +268,104 @@ impl Sensor {
     }
 
     /// Advances the pixels in `rect` from `t0` to `t1` µs, the scene now showing `image`.
-    /// Pixels outside `rect` must not have changed since their last update.
-    #[allow(clippy::needless_range_loop)] // several parallel arrays share the index
+    /// Pixels outside `rect` must not have changed since the last step. With
+    /// [`PixelModel::V2`] the pixels not at rest after an earlier step (photoreceptor not
+    /// settled, a crossing held) are advanced too, wherever they are; with [`PixelModel::V1`]
+    /// only `rect`'s (the caller passes the pixels changed in the last 20 ms).
     pub fn step(&mut self, t0: f64, t1: f64, image: &[f32], rect: Rect, out: &mut Vec<Event>) {
-        let dt = (t1 - t0) * 1e-6;
-        let w_full = std::f32::consts::TAU * self.params.cutoff_hz as f32 * dt as f32;
-        let drift_rate = (self.params.leak_hz * dt) as f32;
-        let refractory = self.params.refractory_us;
+        let step = Step {
+            t0,
+            t1,
+            w_full: std::f32::consts::TAU
+                * self.params.cutoff_hz as f32
+                * ((t1 - t0) * 1e-6) as f32,
+            drift_rate: (self.params.leak_hz * (t1 - t0) * 1e-6) as f32,
+        };
         for y in rect.y0..rect.y1 {
-            for i in y * self.width + rect.x0..y * self.width + rect.x1 {
-                let input = image[i];
-                let settled = (self.filtered[i] - self.target[i]).abs() < 1e-4;
-                let d = self.filtered[i] - self.memory[i];
-                if input == self.input[i] && settled && d < self.thr_on[i] && -d < self.thr_off[i] {
-                    continue; // static, nothing pending: handled lazily
+            let row = y * self.width;
+            let pixels = image.iter().enumerate().take(row + rect.x1);
+            for (i, &input) in pixels.skip(row + rect.x0) {
+                self.update(i, &step, input, out);
+                if self.model == PixelModel::V2 && !self.at_rest(i) && !self.live[i] {
+                    self.live[i] = true;
+                    self.unsettled.push(i as u32);
                 }
-                self.advance_static(i, t0, out);
-                if input != self.input[i] {
-                    self.input[i] = input;
-                    self.target[i] = log_intensity(input);
-                }
-                let wdt = w_full * (input / 0.2).clamp(0.1, 1.0);
-                let alpha = wdt / (1.0 + wdt);
-                let l0 = self.filtered[i];
-                let l1 = l0 + alpha * (self.target[i] - l0);
-                self.filtered[i] = l1;
-                let on_thr = self.thr_on[i];
-                let mut m = self.memory[i] - drift_rate * on_thr;
-                let span = l1 - l0;
-                if l1 - m >= on_thr {
-                    while l1 - m >= on_thr {
-                        let level = m + on_thr;
-                        let frac = if span > 0.0 {
-                            ((level - l0) / span).clamp(0.0, 1.0)
-                        } else {
-                            0.0
-                        };
-                        let t = t0 + f64::from(frac) * (t1 - t0);
-                        if t - self.last_event[i] < refractory {
-                            break;
-                        }
-                        out.push(self.event(i, t, true));
-                        self.last_event[i] = t;
-                        m = level;
-                    }
-                } else {
-                    let off_thr = self.thr_off[i];
-                    while m - l1 >= off_thr {
-                        let level = m - off_thr;
-                        let frac = if span < 0.0 {
-                            ((level - l0) / span).clamp(0.0, 1.0)
-                        } else {
-                            0.0
-                        };
-                        let t = t0 + f64::from(frac) * (t1 - t0);
-                        if t - self.last_event[i] < refractory {
-                            break;
-                        }
-                        out.push(self.event(i, t, false));
-                        self.last_event[i] = t;
-                        m = level;
-                    }
-                }
-                self.memory[i] = m;
-                self.clock[i] = t1;
             }
         }
+        if self.model == PixelModel::V2 {
+            // Pixels that were not at rest: those outside `rect` still show the same image.
+            let mut unsettled = core::mem::take(&mut self.unsettled);
+            unsettled.retain(|&i| {
+                let i = i as usize;
+                let (x, y) = (i % self.width, i / self.width);
+                if !(rect.x0..rect.x1).contains(&x) || !(rect.y0..rect.y1).contains(&y) {
+                    self.update(i, &step, image[i], out);
+                }
+                let keep = !self.at_rest(i);
+                self.live[i] = keep;
+                keep
+            });
+            self.unsettled = unsettled;
+        }
+    }
+
+    /// Whether pixel `i` needs no update while its input stays the same: photoreceptor settled,
+    /// no crossing due (leak is advanced lazily).
+    fn at_rest(&self, i: usize) -> bool {
+        let d = self.filtered[i] - self.memory[i];
+        (self.filtered[i] - self.target[i]).abs() < 1e-4
+            && d < self.thr_on[i]
+            && -d < self.thr_off[i]
+    }
+
+    /// Advances pixel `i` over `step`, its input now `input`.
+    fn update(&mut self, i: usize, step: &Step, input: f32, out: &mut Vec<Event>) {
+        if input == self.input[i] && self.at_rest(i) {
+            return; // static, nothing pending: handled lazily
+        }
+        let (t0, t1) = (step.t0, step.t1);
+        self.advance_static(i, t0, out);
+        if input != self.input[i] {
+            self.input[i] = input;
+            self.target[i] = log_intensity(input);
+        }
+        let wdt = step.w_full * (input / 0.2).clamp(0.1, 1.0);
+        let alpha = wdt / (1.0 + wdt);
+        let l0 = self.filtered[i];
+        let l1 = l0 + alpha * (self.target[i] - l0);
+        self.filtered[i] = l1;
+        let on_thr = self.thr_on[i];
+        let mut m = self.memory[i] - step.drift_rate * on_thr;
+        let span = l1 - l0;
+        // Crossings of `m ± k·C` in order, ON while the level ends above `m + C+`, else OFF.
+        let on = l1 - m >= on_thr;
+        let thr = if on { on_thr } else { self.thr_off[i] };
+        let sign = if on { 1.0 } else { -1.0 };
+        while sign * (l1 - m) >= thr {
+            let level = m + sign * thr;
+            // The crossing's time on the step's line; a level already passed at `t0` (held
+            // from an earlier step) is crossed at `t0`.
+            let frac = if sign * span > 0.0 {
+                ((level - l0) / span).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let mut t = t0 + f64::from(frac) * (t1 - t0);
+            if t - self.last_event[i] < self.params.refractory_us {
+                let free = self.last_event[i] + self.params.refractory_us;
+                match self.model {
+                    PixelModel::V1 => break,
+                    // Fires when the refractory period ends, within this step or a later one.
+                    PixelModel::V2 if free < t1 => t = free,
+                    PixelModel::V2 => break,
+                }
+            }
+            out.push(self.event(i, t, on));
+            self.last_event[i] = t;
+            m = level;
+        }
+        self.memory[i] = m;
+        self.clock[i] = t1;
     }
 
     /// Ends the recording at `t_end` µs: leak events of every pixel up to then, shot noise and
@@ -305,7 +415,7 @@ mod tests {
     #[test]
     fn a_brightness_step_gives_the_right_number_of_events() {
         let img = vec![0.1f32; 4];
-        let mut s = Sensor::new(params(), &img, 2, 1, 0, 0);
+        let mut s = Sensor::new(params(), PixelModel::V2, &img, 2, 1, 0, 0);
         s.memory = s.target.clone();
         let mut out = Vec::new();
         let brighter: Vec<f32> = img.iter().map(|i| i * 3.0).collect(); // ln 3 = 1.0986 → 5 ON
@@ -335,24 +445,89 @@ mod tests {
         assert_eq!(out.len(), 4 * 6);
     }
 
-    #[test]
-    fn refractory_period_limits_the_rate() {
-        let img = vec![0.1f32; 1];
+    /// One pixel, no mismatch or noise, instant photoreceptor unless `cutoff_hz` is given.
+    fn one_pixel(model: PixelModel, refractory_us: f64, cutoff_hz: f64) -> Sensor {
         let mut p = params();
-        p.refractory_us = 600.0;
-        let mut s = Sensor::new(p, &img, 1, 1, 0, 0);
+        p.refractory_us = refractory_us;
+        p.cutoff_hz = cutoff_hz;
+        let mut s = Sensor::new(p, model, &[0.1], 1, 1, 0, 0);
         s.memory = s.target.clone();
-        let mut out = Vec::new();
-        let all = Rect {
-            x0: 0,
-            x1: 1,
-            y0: 0,
-            y1: 1,
+        s
+    }
+
+    const ONE: Rect = Rect {
+        x0: 0,
+        x1: 1,
+        y0: 0,
+        y1: 1,
+    };
+
+    #[test]
+    fn held_crossings_fire_when_the_refractory_period_ends() {
+        // 0.1 → 0.5 at once: ln 5 = 1.609, eight crossings of 0.2, the first at 0.2 / 1.609 of
+        // the first step (124.3 µs); 600 µs refractory.
+        let times = |model| {
+            let mut s = one_pixel(model, 600.0, 1e7);
+            let mut out = Vec::new();
+            s.step(0.0, 1000.0, &[0.5], ONE, &mut out);
+            s.step(1000.0, 2000.0, &[0.5], ONE, &mut out);
+            out.iter().map(|e| e.t).collect::<Vec<_>>()
         };
-        s.step(0.0, 1000.0, &[0.5], all, &mut out);
+        // V2: every 600 µs from the first, across the step boundary.
+        assert_eq!(times(PixelModel::V2), [124, 724, 1324, 1924]);
+        // V1: a held crossing waited for the next step's start.
+        assert_eq!(times(PixelModel::V1), [124, 1000]);
+    }
+
+    #[test]
+    fn pixels_settle_after_their_image_stops_changing() {
+        // 0.1 → 0.3 (ln 3 = 1.099: five crossings of 0.2) through a 10 Hz photoreceptor
+        // (τ = 16 ms): about one crossing in the first 4 ms step, the rest over the next
+        // ~100 ms, when no render touches the pixel any more (empty rectangles).
+        let run = |model| {
+            let mut s = one_pixel(model, 0.0, 10.0);
+            let mut out = Vec::new();
+            s.step(0.0, 4000.0, &[0.3], ONE, &mut out);
+            for k in 1..100 {
+                let t = f64::from(k) * 4000.0;
+                s.step(t, t + 4000.0, &[0.3], Rect::default(), &mut out);
+            }
+            out
+        };
+        let v2 = run(PixelModel::V2);
+        assert_eq!(v2.len(), 5);
+        assert!(v2.iter().all(|e| e.on));
+        assert!(v2.windows(2).all(|w| w[0].t < w[1].t));
+        assert!(v2[4].t > 20_000, "{v2:?}");
+        // V1 froze the pixel with its photoreceptor a fifth of the way there.
+        assert_eq!(run(PixelModel::V1).len(), 1);
+    }
+
+    #[test]
+    fn a_leak_event_held_by_the_refractory_period_fires_when_it_ends() {
+        // A static pixel whose leak event is due 100 µs after an event, refractory 500 µs.
+        let mut p = params();
+        p.refractory_us = 500.0;
+        p.leak_hz = 1.0;
+        let mut s = Sensor::new(p, PixelModel::V2, &[0.1], 1, 1, 0, 0);
+        // Memory 100 µs of drift (0.2 · 1e-4 ln units) above the ON threshold's reach.
+        s.memory[0] = s.filtered[0] - 0.2 + 0.2 * 1e-4;
+        s.last_event[0] = 0.0;
+        let mut out = Vec::new();
+        s.advance_static(0, 2000.0, &mut out);
+        assert_eq!(out.iter().map(|e| e.t).collect::<Vec<_>>(), [500]);
+        // Times where `(last + refractory) − last < refractory` in f64: the held event still
+        // fires, once (the loop tested the period again, and spun forever).
+        let (last, refractory) = (1_527_549.237_953_228, 329.562_123_165_479_53);
+        assert!((last + refractory) - last < refractory);
+        s.params.refractory_us = refractory;
+        s.memory[0] = s.filtered[0] - 0.2 + 0.2 * 1e-4;
+        s.clock[0] = last;
+        s.last_event[0] = last;
+        out.clear();
+        s.advance_static(0, last + 2000.0, &mut out);
         assert_eq!(out.len(), 1);
-        s.step(1000.0, 2000.0, &[0.5], all, &mut out);
-        assert_eq!(out.len(), 2);
+        assert_eq!(out[0].t, (last + refractory).floor() as i64);
     }
 
     #[test]
@@ -363,7 +538,7 @@ mod tests {
         p.leak_hz = 0.1;
         p.shot_hz = 0.05;
         p.hot_pixels = 0;
-        let mut s = Sensor::new(p, &img, 100, 3, 0, 0);
+        let mut s = Sensor::new(p, PixelModel::V2, &img, 100, 3, 0, 0);
         let mut out = Vec::new();
         s.finish(10e6, &mut out);
         let on = out.len() as f64;

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 
 use crate::body::{Capsule, Subject, JOINTS};
 use crate::motion::{Motion, Movement, Stage};
-use crate::pixel::{Sensor, SensorParams};
+use crate::pixel::{PixelModel, Sensor, SensorParams};
 use crate::render::{Rect, Room, View};
 
 /// Longest render step, µs.
@@ -23,8 +23,8 @@ pub const MAX_STEP_US: f64 = 4000.0;
 pub const MIN_STEP_US: f64 = 50.0;
 /// Largest image motion of any joint between two renders, pixels.
 pub const MAX_STEP_PX: f64 = 0.75;
-/// Pixels keep being updated for this long after the body leaves them (photoreceptor
-/// settling), µs.
+/// With [`PixelModel::V1`], pixels keep being updated for this long after their image last
+/// changed (photoreceptor settling), µs; [`PixelModel::V2`] updates them until they are at rest.
 const SETTLE_US: f64 = 20_000.0;
 /// Ground-truth rate, Hz.
 pub const GT_HZ: f64 = 100.0;
@@ -40,6 +40,8 @@ pub struct RecordingSpec {
     pub movement: Movement,
     /// Length, seconds.
     pub seconds: f64,
+    /// The pixel model's version ([`PixelModel::V2`] unless reproducing data made with V1).
+    pub pixel: PixelModel,
 }
 
 /// A simulated recording.
@@ -157,6 +159,7 @@ pub fn simulate(spec: &RecordingSpec, cameras: &[Camera; 4]) -> Recording {
             view.render(&scenes[0], &mut frame);
             let mut px = Sensor::new(
                 sensor[c],
+                spec.pixel,
                 &frame.intensity,
                 view.width(),
                 spec.seed,
@@ -167,14 +170,20 @@ pub fn simulate(spec: &RecordingSpec, cameras: &[Camera; 4]) -> Recording {
             let mut recent: VecDeque<(f64, Rect)> = VecDeque::new();
             for k in 1..times.len() {
                 let rect = view.render(&scenes[k], &mut frame);
-                recent.push_back((times[k], rect));
-                while recent
-                    .front()
-                    .is_some_and(|&(tr, _)| tr < times[k] - SETTLE_US)
-                {
-                    recent.pop_front();
-                }
-                let active = recent.iter().fold(Rect::default(), |a, &(_, r)| a.union(r));
+                let active = match spec.pixel {
+                    PixelModel::V1 => {
+                        recent.push_back((times[k], rect));
+                        while recent
+                            .front()
+                            .is_some_and(|&(tr, _)| tr < times[k] - SETTLE_US)
+                        {
+                            recent.pop_front();
+                        }
+                        recent.iter().fold(Rect::default(), |a, &(_, r)| a.union(r))
+                    }
+                    // The sensor keeps the pixels that are not at rest itself.
+                    PixelModel::V2 => rect,
+                };
                 px.step(times[k - 1], times[k], &frame.intensity, active, &mut out);
             }
             px.finish(t_end, &mut out);

@@ -6,7 +6,7 @@ use common::dhp19_cameras;
 use evpose_sim::body::{BONES, JOINTS};
 use evpose_sim::motion::Stage;
 use evpose_sim::render::{Room, View};
-use evpose_sim::{simulate, simulate_many, Movement, RecordingSpec, Subject};
+use evpose_sim::{simulate, simulate_many, Movement, PixelModel, RecordingSpec, Subject};
 
 #[test]
 fn the_stage_is_where_dhp19_cameras_look() {
@@ -97,6 +97,7 @@ fn spec(movement: Movement, seed: u64, seconds: f64) -> RecordingSpec {
         subject: 0,
         movement,
         seconds,
+        pixel: PixelModel::V2,
     }
 }
 
@@ -231,4 +232,34 @@ fn zero_and_tiny_lengths_do_not_panic() {
     let r = simulate(&spec(Movement::Squats, 1, 0.015), &cams);
     assert_eq!(r.gt_mm.len(), 2);
     assert!(r.events.iter().all(|(_, e)| e.t < 15_000));
+}
+
+/// The largest number of one camera's events that share a timestamp.
+fn most_events_at_one_time(rec: &evpose_sim::Recording) -> usize {
+    let mut counts = std::collections::HashMap::new();
+    for (c, e) in &rec.events {
+        *counts.entry((*c, e.t)).or_insert(0usize) += 1;
+    }
+    counts.into_values().max().unwrap_or(0)
+}
+
+#[test]
+fn event_times_do_not_bunch_at_render_steps() {
+    // Seed 11's squat draws a camera with a long refractory period: with V1's pixel model
+    // hundreds of its events shared a render step's start (`evpose sim --seed 11`: 26 % of
+    // the recording's events at a timestamp shared by 20 or more); V2 fires held crossings
+    // when the refractory period ends.
+    let cams = dhp19_cameras();
+    let s = spec(Movement::Squats, 11, 0.8);
+    let v2 = most_events_at_one_time(&simulate(&s, &cams));
+    let v1 = most_events_at_one_time(&simulate(
+        &RecordingSpec {
+            pixel: PixelModel::V1,
+            ..s
+        },
+        &cams,
+    ));
+    println!("most events of a camera at one timestamp: V1 {v1}, V2 {v2}");
+    assert!(v1 >= 100, "V1 {v1}");
+    assert!(v2 < 20, "V2 {v2}");
 }

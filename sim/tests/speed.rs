@@ -3,7 +3,7 @@
 
 mod common;
 
-use evpose_sim::{simulate_many, Movement, RecordingSpec};
+use evpose_sim::{simulate_many, Movement, PixelModel, RecordingSpec};
 
 #[test]
 #[ignore = "timing; run in release"]
@@ -22,6 +22,7 @@ fn events_per_second() {
         subject: i as u32,
         movement,
         seconds: 4.0,
+        pixel: PixelModel::V2,
     })
     .collect();
     let start = std::time::Instant::now();
@@ -61,6 +62,7 @@ fn event_rates_per_movement() {
             subject: i as u32,
             movement,
             seconds: 3.0,
+            pixel: PixelModel::V2,
         })
         .collect();
     let lines = std::sync::Mutex::new(Vec::new());

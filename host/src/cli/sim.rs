@@ -5,6 +5,7 @@ use std::time::Instant;
 
 use anyhow::Result;
 use clap::Args;
+use evpose_sim::PixelModel;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::simulate::{self, SimOptions, Split};
@@ -30,6 +31,11 @@ pub struct SimArgs {
     /// The subject split this set belongs to (`evpose dataset --split` selects by it).
     #[arg(long, value_enum, default_value_t = Split::Train)]
     pub split: Split,
+    /// The pixel model: `v2` (held crossings fire when the refractory period ends, pixels
+    /// settle), or `v1`, the model the shipped models' data were made with (`train/recipe.sh`).
+    #[arg(long, default_value = "v2",
+          value_parser = clap::builder::PossibleValuesParser::new(PixelModel::ALL.map(PixelModel::name)))]
+    pub pixel_model: String,
 }
 
 /// Runs `evpose sim`.
@@ -40,6 +46,7 @@ pub fn sim(a: &SimArgs) -> Result<()> {
         seconds: a.seconds,
         movements: simulate::parse_movements(&a.movements)?,
         split: a.split,
+        pixel: PixelModel::from_name(&a.pixel_model).expect("clap checked the name"),
     };
     let total = opts.subjects as u64 * opts.movements.len() as u64;
     let bar = ProgressBar::new(total);
@@ -57,11 +64,12 @@ pub fn sim(a: &SimArgs) -> Result<()> {
         .sum();
     let secs = start.elapsed().as_secs_f64();
     eprintln!(
-        "wrote {} recordings ({} events, {:.1} M events/s) to {} in {:.1} s; synthetic data, \
-         not DHP19",
+        "wrote {} recordings ({} events, {:.1} M events/s, pixel model {}) to {} in {:.1} s; \
+         synthetic data, not DHP19",
         m.recordings.len(),
         events,
         events as f64 / secs / 1e6,
+        m.pixel_model,
         a.out.display(),
         secs
     );
