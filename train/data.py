@@ -38,6 +38,18 @@ class Dataset:
         return self
 
     @staticmethod
+    def load(paths, limit=None):
+        """The datasets at `paths` as one, or their first `limit` samples in all (in order)."""
+        parts, left = [], limit
+        for path in paths:
+            if left is not None and left <= 0:
+                break
+            parts.append(Dataset(path, left))
+            if left is not None:
+                left -= len(parts[-1])
+        return Dataset.concat(parts)
+
+    @staticmethod
     def concat(parts):
         """One dataset of several (same point count)."""
         if len(parts) == 1:
@@ -58,7 +70,10 @@ class Dataset:
               size=(346, 260)):
         """Inputs `(B, 5, points)`, labels, masks and person flags of rows `idx`. With fewer `points` than stored, a
         random subset per sample (the stored rows are already a uniform sample of the window,
-        so a subset of them is one too).
+        so a subset of them is one too). A window with fewer cells than stored rows was
+        sampled with replacement (`core::sample`), its repeats adjacent (indices ascending):
+        the subset takes distinct rows first, as `evpose` samples a window at inference (`N`
+        distinct points whenever the window has `N`).
 
         Augmentation (training): `shift` moves each sample's points and labels by whole pixels
         drawn from [-shift, shift] per axis (joints that leave the sensor get weight 0);
@@ -69,7 +84,11 @@ class Dataset:
         x = self.points[idx]
         lab, mask = self.label2d[idx].clone(), self.mask[idx].clone()
         if points is not None and points < x.size(1):
-            order = torch.rand(x.size(0), x.size(1), generator=generator).argsort(dim=1)
+            # A row equal to the one before it is a repeat: sorted after every distinct row.
+            repeat = torch.zeros(x.shape[:2], dtype=torch.bool)
+            repeat[:, 1:] = (x[:, 1:] == x[:, :-1]).all(dim=-1).cpu()
+            key = torch.rand(x.size(0), x.size(1), generator=generator) + repeat.float()
+            order = key.argsort(dim=1)
             pick = order[:, :points].sort(dim=1)[0].to(dev)
             x = torch.gather(x, 1, pick.unsqueeze(-1).expand(-1, -1, 5))
         else:

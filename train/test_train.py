@@ -164,3 +164,38 @@ def test_fit_minutes_plans_the_epochs_it_trains(tiny, tmp_path):
         # The rate logged after epoch e is the next epoch's; a milestone of 0 never fires.
         drops = sum(1 for m in (first, second) if 0 < m <= e["epoch"])
         assert e["lr"] == pytest.approx(1e-4 * 0.1 ** drops), (planned, log)
+
+
+def test_limit_counts_the_samples_of_every_dataset_together(tiny):
+    """`--limit N` keeps the first N samples of the --data sets together, not N of each."""
+    assert len(data.Dataset.load([tiny, tiny])) == 48
+    both = data.Dataset.load([tiny, tiny], 30)
+    assert len(both) == 30
+    one = data.Dataset(tiny)
+    assert torch.equal(both.points[:24], one.points)
+    assert torch.equal(both.points[24:], one.points[:6])
+    assert len(data.Dataset.load([tiny, tiny], 10)) == 10
+
+
+def test_a_subset_takes_distinct_points_before_repeats(tmp_path):
+    """A window with fewer cells than stored rows was sampled with replacement (repeats
+    adjacent): fewer training points take distinct rows, as inference would."""
+    distinct = np.arange(40, dtype=np.float32)[:, None] * np.ones(5, np.float32)
+    reps = np.array([3, 1, 1, 2] * 10)  # 40 cells in 70 rows, every fourth repeated
+    rows = np.repeat(distinct, reps, axis=0)
+    np.save(tmp_path / "points.npy", np.stack([rows[:64], rows[:64]]))
+    np.save(tmp_path / "label2d.npy", np.zeros((2, models.JOINTS, 2), np.float32))
+    np.save(tmp_path / "mask.npy", np.ones((2, models.JOINTS), np.uint8))
+    np.save(tmp_path / "camera.npy", np.full(2, 2, np.uint8))
+    (tmp_path / "manifest.json").write_text(json.dumps({"points": 64, "samples": 2}))
+    ds = data.Dataset(tmp_path)
+    cells = len(np.unique(rows[:64, 0]))
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(20):
+        for n in (8, cells):
+            x, *_ = ds.batch(torch.arange(2), n, gen)
+            for b in range(2):
+                assert len(torch.unique(x[b, 0])) == n
+        # More points than cells: every cell, then repeats.
+        x, *_ = ds.batch(torch.arange(2), cells + 5, gen)
+        assert all(len(torch.unique(x[b, 0])) == cells for b in range(2))

@@ -52,7 +52,8 @@ def parse(argv=None):
     p.add_argument("--flip", action="store_true",
                    help="augmentation: mirror half the samples left-right, joints swapped")
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--limit", type=int, help="use only the first LIMIT training samples")
+    p.add_argument("--limit", type=int,
+                   help="use only the first LIMIT training samples (of all --data sets, in order)")
     p.add_argument("--steps", type=int, help="stop after this many optimizer steps in all")
     p.add_argument("--minutes", type=float, help="stop after the epoch that passes this budget")
     p.add_argument("--fit-minutes", type=float,
@@ -115,7 +116,7 @@ def train(args):
     if args.threads:
         torch.set_num_threads(args.threads)
     device = torch.device(args.device)
-    ds = data.Dataset.concat([data.Dataset(d, args.limit) for d in args.data])
+    ds = data.Dataset.load(args.data, args.limit)
     val = data.Dataset(args.val) if args.val else None
     if device.type == "cuda":
         # The arrays live on the GPU (a few GB at most) and batches are cut there; TF32
