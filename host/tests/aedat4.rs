@@ -4,7 +4,9 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use evpose_core::Event;
-use evpose_host::io::aedat4::{Aedat4Reader, Aedat4Writer, Compression, WRITE_PACKET_EVENTS};
+use evpose_host::io::aedat4::{
+    Aedat4Reader, Aedat4Writer, Compression, WRITE_PACKET_EVENTS, WRITE_PACKET_SPAN_US,
+};
 use evpose_host::io::{open, Batch, CameraInfo, EventReader, Format, ReadError, BATCH_EVENTS};
 
 /// The head of a DAVIS346 street recording made with DV (LZ4, streams EVTS 0, FRME 1, IMUS 2,
@@ -112,6 +114,35 @@ fn synthetic_events(n: usize) -> Vec<(u8, Event)> {
     events.push((0, Event::new(0, 32767, t + 1, true)));
     events.push((0, Event::new(0, 0, -5, true)));
     events
+}
+
+/// What reading back the writer's file of `want` gives, `got`, must be: every camera's events in
+/// their order, and no event read before one of another camera `WRITE_PACKET_SPAN_US` or more
+/// older (checked over the events of `want` that came in time order).
+fn assert_written_order(got: &[(u8, Event)], want: &[(u8, Event)]) {
+    let by_camera = |v: &[(u8, Event)]| {
+        let mut v = v.to_vec();
+        v.sort_by_key(|&(c, _)| c); // stable: each camera's order stays
+        v
+    };
+    assert_eq!(by_camera(got), by_camera(want));
+    let in_order: std::collections::HashSet<(u8, Event)> = want
+        .iter()
+        .scan(i64::MIN, |latest, &(c, e)| {
+            let kept = e.t >= *latest;
+            *latest = (*latest).max(e.t);
+            Some(kept.then_some((c, e)))
+        })
+        .flatten()
+        .collect();
+    let mut latest = i64::MIN;
+    for &(c, e) in got.iter().filter(|ev| in_order.contains(ev)) {
+        assert!(
+            latest.saturating_sub(e.t) < WRITE_PACKET_SPAN_US,
+            "{c} {e:?} after {latest}"
+        );
+        latest = latest.max(e.t);
+    }
 }
 
 /// File offsets of the header end and of every packet end, by walking the packet headers.
@@ -267,7 +298,7 @@ fn round_trip_two_cameras_every_compression() {
         assert_eq!(reader.compression(), compression);
         assert_eq!(reader.info().cameras, cameras, "{compression:?}");
         let got = read_all_from(reader).expect("read");
-        assert_eq!(got.events, events, "{compression:?}");
+        assert_written_order(&got.events, &events);
         assert_eq!(got.skipped, 0);
     }
 }
@@ -277,7 +308,7 @@ fn batches_are_bounded_and_span_packets() {
     let events = synthetic_events(3 * BATCH_EVENTS + 123);
     let bytes = write_file(&two_cameras(), Compression::Lz4, &events);
     let got = read_all(&bytes).expect("read");
-    assert_eq!(got.events, events);
+    assert_written_order(&got.events, &events);
     assert!(got.batches.iter().all(|&b| b > 0 && b <= BATCH_EVENTS));
     assert!(got.batches.iter().filter(|&&b| b == BATCH_EVENTS).count() >= 3);
 }
@@ -364,7 +395,8 @@ fn writer_rejects_what_aedat4_cannot_hold() {
     assert!(Aedat4Writer::new(Vec::new(), &twice, Compression::None).is_err());
 }
 
-/// Packets are split at camera changes and at `WRITE_PACKET_EVENTS`.
+/// Packets hold one camera's events, at most `WRITE_PACKET_EVENTS`; the open ones are written
+/// at the end oldest first.
 #[test]
 fn writer_packet_sizes() {
     let events: Vec<_> = (0..2 * WRITE_PACKET_EVENTS + 1)
@@ -378,6 +410,45 @@ fn writer_packet_sizes() {
         .map(|w| (w[1] - w[0] - 8 - 32) / 16)
         .collect();
     assert_eq!(sizes, [WRITE_PACKET_EVENTS, WRITE_PACKET_EVENTS, 1, 1]);
+}
+
+/// Cameras interleaved event by event share no packet but need not split them (they were
+/// one-event packets), and a packet is written once an event comes `WRITE_PACKET_SPAN_US` after
+/// its first, whatever the event's camera.
+#[test]
+fn interleaved_cameras_fill_packets_of_their_own() {
+    // 0.25 µs apart on average: 8,000 events over 2 ms, cameras alternating.
+    let events: Vec<_> = (0..8000)
+        .map(|i| ((i % 2) as u8, Event::new(1, 1, i / 4, i % 3 == 0)))
+        .collect();
+    let bytes = write_file(&two_cameras(), Compression::None, &events);
+    let sizes = |b: &[u8]| {
+        packet_bounds(b)
+            .windows(2)
+            .map(|w| (w[1] - w[0] - 8 - 32) / 16)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(sizes(&bytes), [4000, 4000]);
+    assert_written_order(&read_all(&bytes).unwrap().events, &events);
+
+    // Camera 1 fires once at t = 0, camera 0 keeps going: camera 1's packet is written when
+    // camera 0 reaches t = WRITE_PACKET_SPAN_US, before the events from then on.
+    let span = WRITE_PACKET_SPAN_US;
+    let events: Vec<_> = std::iter::once((1, Event::new(5, 5, 0, true)))
+        .chain(
+            (0..3 * span)
+                .step_by(100)
+                .map(|t| (0, Event::new(1, 1, t, true))),
+        )
+        .collect();
+    let bytes = write_file(&two_cameras(), Compression::None, &events);
+    let got = read_all(&bytes).unwrap().events;
+    let at = got.iter().position(|&(c, _)| c == 1).unwrap();
+    assert!(got[..at].iter().all(|(_, e)| e.t < span), "{at}");
+    assert_eq!(at, (span / 100) as usize);
+    assert_written_order(&got, &events);
+    // Packets of camera 0: [0, span), [span, 2 span), [2 span, 3 span); camera 1's second.
+    assert_eq!(sizes(&bytes), [100, 1, 100, 100]);
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -47,6 +47,11 @@ pub const MAX_PACKET_BYTES: u64 = 256 << 20;
 /// Events per packet that [`Aedat4Writer`] writes at most.
 pub const WRITE_PACKET_EVENTS: usize = 4096;
 
+/// Longest time from a packet's first event to an event that [`Aedat4Writer`] lets arrive
+/// before it writes the packet, µs: how far a reader taking packets in file order can see
+/// time-ordered events of different cameras out of order.
+pub const WRITE_PACKET_SPAN_US: i64 = 10_000;
+
 /// File offset of the IOHeader flatbuffer (after the magic and its u32 size prefix).
 pub(super) const HEADER_OFFSET: u64 = MAGIC.len() as u64 + 4;
 

@@ -21,19 +21,33 @@ pub(super) const PACKET_HEAD: [u8; 32] = [
 
 /// Writes an AEDAT 4.0 file: one `EVTS` stream per camera, no data table.
 ///
-/// Events are gathered into packets of at most [`WRITE_PACKET_EVENTS`] events of one camera,
-/// in the order given. Call [`Aedat4Writer::finish`]: dropping the writer loses the last packet.
-/// `Lz4High` is written like `Lz4` (the frames decode the same way).
+/// Each camera fills a packet of its own, as DV records several cameras: a packet is written
+/// when it holds [`WRITE_PACKET_EVENTS`] events, or once an event arrives [`WRITE_PACKET_SPAN_US`]
+/// or more after its first one (whatever camera that event is of), and at
+/// [`Aedat4Writer::finish`] (dropping the writer loses the open packets). So each camera's
+/// events keep their order exactly, and a reader that takes packets in file order (as
+/// [`super::Aedat4Reader`] does) sees events of time-ordered input out of order across cameras
+/// by less than [`WRITE_PACKET_SPAN_US`]. `Lz4High` is written like `Lz4` (the frames decode
+/// the same way).
 pub struct Aedat4Writer<W: Write> {
     pub(super) out: W,
     pub(super) compression: Compression,
     /// Stream id of each camera id.
     pub(super) streams: Vec<Option<i32>>,
-    /// The `EventPacket` being filled, and its stream.
-    pub(super) packet: Vec<u8>,
-    pub(super) packet_stream: i32,
-    pub(super) packet_events: usize,
+    /// The `EventPacket` being filled for each stream.
+    pub(super) open: Vec<OpenPacket>,
+    /// The earliest first event time of the open packets (`i64::MAX` when none is open).
+    pub(super) oldest: i64,
     pub(super) compressed: Vec<u8>,
+}
+
+/// A stream's packet being filled.
+pub(super) struct OpenPacket {
+    /// [`PACKET_HEAD`] and the events so far.
+    bytes: Vec<u8>,
+    events: usize,
+    /// Time of its first event, µs.
+    first_t: i64,
 }
 
 pub(super) fn invalid(message: String) -> io::Error {
@@ -54,13 +68,20 @@ impl<W: Write> Aedat4Writer<W> {
         }
         out.write_all(MAGIC)?;
         out.write_all(&io_header(&info_xml(cameras, compression), compression))?;
+        let open = cameras
+            .iter()
+            .map(|_| OpenPacket {
+                bytes: PACKET_HEAD.to_vec(),
+                events: 0,
+                first_t: 0,
+            })
+            .collect();
         Ok(Self {
             out,
             compression,
             streams,
-            packet: PACKET_HEAD.to_vec(),
-            packet_stream: 0,
-            packet_events: 0,
+            open,
+            oldest: i64::MAX,
             compressed: Vec::new(),
         })
     }
@@ -75,46 +96,68 @@ impl<W: Write> Aedat4Writer<W> {
                 .ok_or_else(|| invalid(format!("camera {camera} was not declared")))?;
             let x = i16::try_from(e.x).map_err(|_| invalid(format!("x = {} > 32767", e.x)))?;
             let y = i16::try_from(e.y).map_err(|_| invalid(format!("y = {} > 32767", e.y)))?;
-            if self.packet_events > 0
-                && (stream != self.packet_stream || self.packet_events >= WRITE_PACKET_EVENTS)
-            {
-                self.flush_packet()?;
+            if e.t.saturating_sub(self.oldest) >= WRITE_PACKET_SPAN_US {
+                self.flush_older(e.t.saturating_sub(WRITE_PACKET_SPAN_US))?;
             }
-            self.packet_stream = stream;
-            self.packet.extend_from_slice(&e.t.to_le_bytes());
-            self.packet.extend_from_slice(&x.to_le_bytes());
-            self.packet.extend_from_slice(&y.to_le_bytes());
-            self.packet.extend_from_slice(&[u8::from(e.on), 0, 0, 0]);
-            self.packet_events += 1;
+            let s = stream as usize; // ids are 0..cameras.len()
+            if self.open[s].events >= WRITE_PACKET_EVENTS {
+                self.flush_packet(s)?;
+            }
+            let p = &mut self.open[s];
+            if p.events == 0 {
+                p.first_t = e.t;
+                self.oldest = self.oldest.min(e.t);
+            }
+            p.bytes.extend_from_slice(&e.t.to_le_bytes());
+            p.bytes.extend_from_slice(&x.to_le_bytes());
+            p.bytes.extend_from_slice(&y.to_le_bytes());
+            p.bytes.extend_from_slice(&[u8::from(e.on), 0, 0, 0]);
+            p.events += 1;
         }
         Ok(())
     }
 
-    /// Writes the last packet, flushes and returns the output.
+    /// Writes the open packets, flushes and returns the output.
     pub fn finish(mut self) -> io::Result<W> {
-        if self.packet_events > 0 {
-            self.flush_packet()?;
-        }
+        self.flush_older(i64::MAX)?;
         self.out.flush()?;
         Ok(self.out)
     }
 
-    /// Compresses and writes the packet being filled, then starts a new one.
-    fn flush_packet(&mut self) -> io::Result<()> {
-        let len = self.packet.len();
+    /// Writes every open packet whose first event is at or before `t`, oldest first.
+    fn flush_older(&mut self, t: i64) -> io::Result<()> {
+        let mut due: Vec<(i64, usize)> = (self.open.iter().enumerate())
+            .filter(|(_, p)| p.events > 0 && p.first_t <= t)
+            .map(|(s, p)| (p.first_t, s))
+            .collect();
+        due.sort_unstable();
+        for (_, s) in due {
+            self.flush_packet(s)?;
+        }
+        Ok(())
+    }
+
+    /// Compresses and writes stream `s`'s open packet, then starts a new one.
+    fn flush_packet(&mut self, s: usize) -> io::Result<()> {
+        let p = &mut self.open[s];
+        let len = p.bytes.len();
         let prefix = u32::try_from(len - 4).map_err(|_| invalid("packet too large".into()))?;
-        let count =
-            u32::try_from(self.packet_events).map_err(|_| invalid("packet too large".into()))?;
-        self.packet[0..4].copy_from_slice(&prefix.to_le_bytes());
-        self.packet[28..32].copy_from_slice(&count.to_le_bytes());
-        compress(self.compression, &self.packet, &mut self.compressed)?;
+        let count = u32::try_from(p.events).map_err(|_| invalid("packet too large".into()))?;
+        p.bytes[0..4].copy_from_slice(&prefix.to_le_bytes());
+        p.bytes[28..32].copy_from_slice(&count.to_le_bytes());
+        compress(self.compression, &p.bytes, &mut self.compressed)?;
         let size = i32::try_from(self.compressed.len())
             .map_err(|_| invalid("compressed packet too large".into()))?;
-        self.out.write_all(&self.packet_stream.to_le_bytes())?;
+        self.out.write_all(&(s as i32).to_le_bytes())?;
         self.out.write_all(&size.to_le_bytes())?;
         self.out.write_all(&self.compressed)?;
-        self.packet.truncate(PACKET_HEAD.len());
-        self.packet_events = 0;
+        p.bytes.truncate(PACKET_HEAD.len());
+        p.events = 0;
+        self.oldest = (self.open.iter())
+            .filter(|p| p.events > 0)
+            .map(|p| p.first_t)
+            .min()
+            .unwrap_or(i64::MAX);
         Ok(())
     }
 }
