@@ -64,6 +64,26 @@ fn files(dir: &Path) -> Vec<(&'static str, PathBuf)> {
         w.write(&b).expect("aedat4 events");
         put(name, file, w.finish().expect("aedat4 finish"));
     }
+    // Four cameras: the reader merges them by time.
+    let cams: Vec<CameraInfo> = (0..4)
+        .map(|id| CameraInfo {
+            id,
+            width: Some(346),
+            height: Some(260),
+            name: None,
+        })
+        .collect();
+    let mut w = Aedat4Writer::new(Vec::new(), &cams, Compression::Lz4).expect("aedat4 header");
+    let mut b = Batch::default();
+    for e in &dhp19 {
+        b.push(e.cam, Event::new(e.x, e.y, e.t, e.on));
+    }
+    w.write(&b).expect("aedat4 events");
+    put(
+        "aedat4 (LZ4, 4 cameras)",
+        "dhp19.aedat4",
+        w.finish().expect("aedat4 finish"),
+    );
     put(
         "aedat2 (DAVIS346)",
         "davis.aedat",

@@ -5,7 +5,8 @@ use std::path::{Path, PathBuf};
 
 use evpose_core::Event;
 use evpose_host::io::aedat4::{
-    Aedat4Reader, Aedat4Writer, Compression, WRITE_PACKET_EVENTS, WRITE_PACKET_SPAN_US,
+    Aedat4Reader, Aedat4Writer, Compression, MERGE_EVENTS, WRITE_PACKET_EVENTS,
+    WRITE_PACKET_SPAN_US,
 };
 use evpose_host::io::{open, Batch, CameraInfo, EventReader, Format, ReadError, BATCH_EVENTS};
 
@@ -117,8 +118,8 @@ fn synthetic_events(n: usize) -> Vec<(u8, Event)> {
 }
 
 /// What reading back the writer's file of `want` gives, `got`, must be: every camera's events in
-/// their order, and no event read before one of another camera `WRITE_PACKET_SPAN_US` or more
-/// older (checked over the events of `want` that came in time order).
+/// their order, merged by time: the events of `want` that came in time order are read in
+/// `(time, camera)` order (whatever order the packets are in).
 fn assert_written_order(got: &[(u8, Event)], want: &[(u8, Event)]) {
     let by_camera = |v: &[(u8, Event)]| {
         let mut v = v.to_vec();
@@ -135,13 +136,10 @@ fn assert_written_order(got: &[(u8, Event)], want: &[(u8, Event)]) {
         })
         .flatten()
         .collect();
-    let mut latest = i64::MIN;
+    let mut last = (i64::MIN, 0);
     for &(c, e) in got.iter().filter(|ev| in_order.contains(ev)) {
-        assert!(
-            latest.saturating_sub(e.t) < WRITE_PACKET_SPAN_US,
-            "{c} {e:?} after {latest}"
-        );
-        latest = latest.max(e.t);
+        assert!((e.t, c) >= last, "{c} {e:?} after {last:?}");
+        last = (e.t, c);
     }
 }
 
@@ -413,8 +411,8 @@ fn writer_packet_sizes() {
 }
 
 /// Cameras interleaved event by event share no packet but need not split them (they were
-/// one-event packets), and a packet is written once an event comes `WRITE_PACKET_SPAN_US` after
-/// its first, whatever the event's camera.
+/// one-event packets), a packet is written once an event comes `WRITE_PACKET_SPAN_US` after its
+/// first, whatever the event's camera, and the reader merges the cameras back by time.
 #[test]
 fn interleaved_cameras_fill_packets_of_their_own() {
     // 0.25 µs apart on average: 8,000 events over 2 ms, cameras alternating.
@@ -442,13 +440,35 @@ fn interleaved_cameras_fill_packets_of_their_own() {
         )
         .collect();
     let bytes = write_file(&two_cameras(), Compression::None, &events);
-    let got = read_all(&bytes).unwrap().events;
-    let at = got.iter().position(|&(c, _)| c == 1).unwrap();
-    assert!(got[..at].iter().all(|(_, e)| e.t < span), "{at}");
-    assert_eq!(at, (span / 100) as usize);
-    assert_written_order(&got, &events);
     // Packets of camera 0: [0, span), [span, 2 span), [2 span, 3 span); camera 1's second.
     assert_eq!(sizes(&bytes), [100, 1, 100, 100]);
+    // Read back merged by time: camera 1's event after camera 0's at the same time.
+    let got = read_all(&bytes).unwrap().events;
+    let mut want = events.clone();
+    want.sort_by_key(|&(c, e)| (e.t, c));
+    assert_eq!(got, want);
+}
+
+/// The time merge buffers at most `MERGE_EVENTS` events: a file whose time stands still (no
+/// event is ever `MERGE_SPAN_US` old) is still read as it goes, not whole.
+#[test]
+fn the_time_merge_buffers_a_bounded_number_of_events() {
+    let n = MERGE_EVENTS + MERGE_EVENTS / 4;
+    let events: Vec<_> = (0..n)
+        .map(|i| ((i % 2) as u8, Event::new((i % 300) as u16, 7, 0, true)))
+        .collect();
+    let bytes = write_file(&two_cameras(), Compression::Lz4, &events);
+    let mut reader = Aedat4Reader::new(&bytes[..]).expect("header");
+    let mut batch = Batch::default();
+    assert!(reader.read_batch(&mut batch).expect("read"));
+    let rest = reader.into_inner().len();
+    assert!(
+        rest > bytes.len() / 10,
+        "{rest} of {} bytes left",
+        bytes.len()
+    );
+    let got = read_all(&bytes).expect("read").events;
+    assert_written_order(&got, &events);
 }
 
 // ---------------------------------------------------------------------------------------------

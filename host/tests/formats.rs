@@ -1295,7 +1295,19 @@ fn truncation_at_every_offset_is_a_prefix_or_an_error() {
         let full = decode(dec, &bytes).unwrap().events;
         for cut in 0..bytes.len() {
             if let Ok(d) = decode_checked(dec, &bytes[..cut]) {
-                assert_eq!(d.events[..], full[..d.events.len()], "{name} cut at {cut}");
+                if matches!(dec, Dec::Aedat4) {
+                    // Its cameras are merged by time over what the file holds: each camera's
+                    // events are a prefix of its own.
+                    for c in 0..=u8::MAX {
+                        let of = |v: &[(u8, Event)]| -> Vec<Event> {
+                            v.iter().filter(|e| e.0 == c).map(|e| e.1).collect()
+                        };
+                        let (part, whole) = (of(&d.events), of(&full));
+                        assert_eq!(part[..], whole[..part.len()], "{name} cut at {cut}");
+                    }
+                } else {
+                    assert_eq!(d.events[..], full[..d.events.len()], "{name} cut at {cut}");
+                }
             }
         }
     }

@@ -21,7 +21,8 @@
 //! `{ t: i64 µs, x: i16, y: i16, on: bool, 3 bytes padding }`.
 //!
 //! Each `EVTS` stream is one camera; its id is its index among the `EVTS` streams in header
-//! order. Packets of other streams are skipped without being decompressed.
+//! order. Packets of other streams are skipped without being decompressed. Several cameras'
+//! events are merged by time ([`Aedat4Reader`]).
 //!
 //! The flatbuffers are read by the small bounds-checked reader below, not generated code:
 //! every offset is checked, so damaged input gives a [`ReadError`](crate::io::ReadError), never a panic, and no
@@ -51,6 +52,14 @@ pub const WRITE_PACKET_EVENTS: usize = 4096;
 /// before it writes the packet, µs: how far a reader taking packets in file order can see
 /// time-ordered events of different cameras out of order.
 pub const WRITE_PACKET_SPAN_US: i64 = 10_000;
+
+/// How far past an event the file must have reached before [`Aedat4Reader`] gives it, when
+/// it merges several cameras by time, µs (ten of DV's 10-ms packets).
+pub const MERGE_SPAN_US: i64 = 100_000;
+
+/// Events [`Aedat4Reader`] buffers at most while it merges several cameras (16 MiB): beyond,
+/// it gives the earliest ones whatever the file holds later.
+pub const MERGE_EVENTS: usize = 1 << 20;
 
 /// File offset of the IOHeader flatbuffer (after the magic and its u32 size prefix).
 pub(super) const HEADER_OFFSET: u64 = MAGIC.len() as u64 + 4;

@@ -1,5 +1,6 @@
 //! The streaming AEDAT 4.0 reader.
 
+use std::collections::VecDeque;
 use std::io::{self, Read};
 
 use evpose_core::Event;
@@ -33,7 +34,17 @@ pub(super) struct Pending {
     pub(super) packet_offset: u64,
 }
 
-/// Streaming AEDAT 4.0 reader: one packet in memory at a time.
+/// Streaming AEDAT 4.0 reader: one packet in memory at a time, or with several event streams
+/// (cameras) a time merge of their packets.
+///
+/// A file of several cameras holds each camera's packets (DV's span up to 10 ms, as
+/// [`super::Aedat4Writer`]'s do) in the order they were recorded, so packet order is time order
+/// only to within a packet. The reader merges the cameras by time: it buffers decoded events
+/// and gives the earliest camera's next event once the file has reached
+/// [`MERGE_SPAN_US`] past it (or [`MERGE_EVENTS`] events are buffered, or the file ends); ties go
+/// to the lower camera id. Each camera's events keep their file order exactly, so a camera's
+/// own time glitches stay where they are. A damaged packet ends the read after the events
+/// buffered before it.
 pub struct Aedat4Reader<R> {
     pub(super) inner: R,
     pub(super) info: StreamInfo,
@@ -46,6 +57,36 @@ pub struct Aedat4Reader<R> {
     pub(super) pending: Pending,
     pub(super) skipped: u64,
     pub(super) finished: bool,
+    /// The time merge of a file with several cameras.
+    pub(super) merge: Option<Merge>,
+}
+
+/// Buffered events of each camera of a several-camera file, merged by time.
+pub(super) struct Merge {
+    queues: Vec<VecDeque<Event>>,
+    /// Events in `queues`.
+    buffered: usize,
+    /// The latest timestamp decoded so far.
+    latest: i64,
+    /// No packet is left to read (the file ended, or `error`).
+    eof: bool,
+    /// The error that ended the packets, returned once the buffered events are given.
+    error: Option<ReadError>,
+}
+
+impl Merge {
+    /// The camera whose next event is the earliest, if any is buffered, and that time.
+    fn earliest(&self) -> Option<(usize, i64)> {
+        (self.queues.iter().enumerate())
+            .filter_map(|(c, q)| q.front().map(|e| (c, e.t)))
+            .min_by_key(|&(c, t)| (t, c))
+    }
+
+    /// Whether an event at `t` may be given: no later packet can hold an earlier one of
+    /// another camera, as far as the merge looks ahead.
+    fn ready(&self, t: i64) -> bool {
+        self.eof || self.buffered > MERGE_EVENTS || t <= self.latest.saturating_sub(MERGE_SPAN_US)
+    }
 }
 
 /// What the file header says.
@@ -240,7 +281,24 @@ impl<R: Read> Aedat4Reader<R> {
             pending: Pending::default(),
             skipped: 0,
             finished: false,
-        })
+            merge: None,
+        }
+        .with_merge())
+    }
+
+    /// Sets up the time merge when the file has several cameras.
+    fn with_merge(mut self) -> Self {
+        let cameras = self.info.cameras.len();
+        if cameras > 1 {
+            self.merge = Some(Merge {
+                queues: (0..cameras).map(|_| VecDeque::new()).collect(),
+                buffered: 0,
+                latest: i64::MIN,
+                eof: false,
+                error: None,
+            });
+        }
+        self
     }
 
     /// Packets of non-event streams (frames, IMU, triggers, …) skipped so far.
@@ -383,6 +441,9 @@ impl<R: Read> Aedat4Reader<R> {
     }
 
     fn fill(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
+        if self.merge.is_some() {
+            return self.fill_merged(batch);
+        }
         while batch.len() < BATCH_EVENTS {
             if self.pending.next < self.pending.end {
                 self.drain_pending(batch)?;
@@ -390,6 +451,77 @@ impl<R: Read> Aedat4Reader<R> {
                 self.finished = true;
                 break;
             }
+        }
+        Ok(())
+    }
+}
+
+impl<R: Read> Aedat4Reader<R> {
+    /// [`Aedat4Reader::fill`] for several cameras: the time merge ([`Aedat4Reader`]).
+    fn fill_merged(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
+        loop {
+            let Some(m) = self.merge.as_mut() else {
+                return Ok(());
+            };
+            while batch.len() < BATCH_EVENTS {
+                let Some((c, _)) = m.earliest().filter(|&(_, t)| m.ready(t)) else {
+                    break;
+                };
+                if let Some(e) = m.queues[c].pop_front() {
+                    // `c` < the camera count ≤ 256 (`route_streams`).
+                    batch.push(c as u8, e);
+                    m.buffered -= 1;
+                }
+            }
+            if batch.len() >= BATCH_EVENTS {
+                return Ok(());
+            }
+            if m.eof {
+                if m.buffered == 0 {
+                    match m.error.take() {
+                        // The buffered events first; the error at the next call.
+                        Some(e) if !batch.is_empty() => m.error = Some(e),
+                        Some(e) => return Err(e),
+                        None => self.finished = true,
+                    }
+                }
+                return Ok(());
+            }
+            let loaded = self.next_packet().and_then(|more| {
+                if more {
+                    self.queue_pending()?;
+                }
+                Ok(more)
+            });
+            if let Some(m) = self.merge.as_mut() {
+                match loaded {
+                    Ok(true) => {}
+                    Ok(false) => m.eof = true,
+                    Err(e) => (m.eof, m.error) = (true, Some(e)),
+                }
+            }
+        }
+    }
+
+    /// Decodes the loaded packet's events into its camera's queue (those before a bad one,
+    /// then the error).
+    fn queue_pending(&mut self) -> Result<(), ReadError> {
+        let (Some(m), p) = (self.merge.as_mut(), &mut self.pending) else {
+            return Ok(());
+        };
+        let Some(queue) = m.queues.get_mut(usize::from(p.camera)) else {
+            return Ok(());
+        };
+        for chunk in self.plain[p.next..p.end].chunks_exact(EVENT_BYTES) {
+            let event = decode_event(chunk).ok_or_else(|| ReadError::Corrupt {
+                offset: p.packet_offset,
+                message: format!("event {} of the packet has a negative coordinate", p.index),
+            })?;
+            m.latest = m.latest.max(event.t);
+            queue.push_back(event);
+            m.buffered += 1;
+            p.index += 1;
+            p.next += EVENT_BYTES;
         }
         Ok(())
     }
