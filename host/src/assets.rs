@@ -32,7 +32,7 @@ pub fn street_window() -> anyhow::Result<Box<dyn EventReader>> {
 
 /// The sample clip, `evpose run`'s default input: a synthetic DHP19-style recording (four
 /// DAVIS346 cameras, AEDAT 2.0, 2 s, 368,884 events) of a held-out subject (`evpose sim --seed
-/// 4242`, never in training) kicking sideways (`side-kick`).
+/// 4242 --pixel-model v1`, never in training) kicking sideways (`side-kick`).
 pub const CLIP: &[u8] = include_bytes!("../../assets/clip/S4242-00_side-kick.aedat");
 
 /// Where [`CLIP`] comes from, for messages.

@@ -128,6 +128,8 @@ pub struct Source {
     pub split: Split,
     /// A real DHP19 recording (DHP19's preprocessing applies by default).
     pub real: bool,
+    /// The simulator's pixel model of a synthetic recording (`v1`, `v2`; its sim manifest's).
+    pub pixel_model: Option<String>,
 }
 
 /// One labelled window of one camera.
@@ -179,6 +181,10 @@ pub struct DatasetManifest {
     /// Samples of person-free windows among `samples` (`--person-free`).
     #[serde(default)]
     pub person_free: u64,
+    /// The simulator's pixel models of the synthetic recordings (`evpose sim --pixel-model`),
+    /// each once; empty for real data and for datasets made before the field existed.
+    #[serde(default)]
+    pub pixel_models: Vec<String>,
 }
 
 /// The recordings of a directory: an `evpose sim` set (its manifest), or real DHP19 files
@@ -202,6 +208,7 @@ pub fn sources(dir: &Path) -> Result<Vec<Source>> {
                 movement: r.movement.clone(),
                 split: m.split,
                 real: false,
+                pixel_model: Some(m.pixel_model.clone()),
             })
         })
         .collect()
@@ -256,6 +263,7 @@ pub fn dhp19_sources(dir: &Path) -> Result<Vec<Source>> {
                 Split::Test
             },
             real: true,
+            pixel_model: None,
         });
     }
     if out.is_empty() {
@@ -730,6 +738,15 @@ pub fn build(
             .collect(),
         synthetic: sources.iter().all(|s| !s.real),
         person_free,
+        pixel_models: {
+            let mut m: Vec<String> = sources
+                .iter()
+                .filter_map(|s| s.pixel_model.clone())
+                .collect();
+            m.sort();
+            m.dedup();
+            m
+        },
     };
     let path = out.join("manifest.json");
     std::fs::write(&path, serde_json::to_string_pretty(&manifest)?)

@@ -139,6 +139,7 @@ fn hand_built() -> (Source, Vec<(u8, Event)>) {
         movement: "test".into(),
         split: Split::Train,
         real: false,
+        pixel_model: None,
     };
     // 65,000 events over 1 s: cameras 0..=3 in turn, 15.4 µs apart.
     let events = (0..65_000u32)
@@ -271,6 +272,7 @@ fn tiny_dataset(label2d: Vec<[[f32; 2]; JOINTS]>, mask: Vec<[u8; JOINTS]>) -> Da
             recordings: vec!["r".into()],
             synthetic: true,
             person_free: 0,
+            pixel_models: Vec::new(),
         },
         label2d,
         mask,
@@ -528,6 +530,11 @@ fn a_dataset_round_trips_through_its_files() {
     let out = dir.path().join("ds");
     let dopts = mean_options(None);
     let m = dataset::build(&sim, &out, &dopts, |_, _| {}).unwrap();
+    assert_eq!(
+        m.pixel_models,
+        ["v2"],
+        "the sim manifest's pixel model carries over"
+    );
     let ds = Dataset::open(&out).unwrap();
     assert_eq!(ds.len() as u64, m.samples);
     assert!(ds.len() >= 2, "{} samples", ds.len());

@@ -273,13 +273,12 @@ impl Sensor {
     /// settled, a crossing held) are advanced too, wherever they are; with [`PixelModel::V1`]
     /// only `rect`'s (the caller passes the pixels changed in the last 20 ms).
     pub fn step(&mut self, t0: f64, t1: f64, image: &[f32], rect: Rect, out: &mut Vec<Event>) {
+        let dt = (t1 - t0) * 1e-6; // s (this form keeps V1's bits)
         let step = Step {
             t0,
             t1,
-            w_full: std::f32::consts::TAU
-                * self.params.cutoff_hz as f32
-                * ((t1 - t0) * 1e-6) as f32,
-            drift_rate: (self.params.leak_hz * (t1 - t0) * 1e-6) as f32,
+            w_full: std::f32::consts::TAU * self.params.cutoff_hz as f32 * dt as f32,
+            drift_rate: (self.params.leak_hz * dt) as f32,
         };
         for y in rect.y0..rect.y1 {
             let row = y * self.width;
@@ -337,9 +336,30 @@ impl Sensor {
         let on_thr = self.thr_on[i];
         let mut m = self.memory[i] - step.drift_rate * on_thr;
         let span = l1 - l0;
+        let off_thr = self.thr_off[i];
+        if self.model == PixelModel::V2 {
+            // A crossing held from an earlier step fires when the refractory period ends if
+            // the level is beyond it then, even where it turns back before the step ends (the
+            // loop below sees only the step's end).
+            loop {
+                let free = self.last_event[i] + self.params.refractory_us;
+                if !(t0..t1).contains(&free) {
+                    break;
+                }
+                let level = l0 + ((free - t0) / (t1 - t0)) as f32 * span;
+                let on = level - m >= on_thr && l1 - m < on_thr;
+                let off = m - level >= off_thr && m - l1 < off_thr;
+                if !(on || off) {
+                    break;
+                }
+                out.push(self.event(i, free, on));
+                self.last_event[i] = free;
+                m = if on { m + on_thr } else { m - off_thr };
+            }
+        }
         // Crossings of `m ± k·C` in order, ON while the level ends above `m + C+`, else OFF.
         let on = l1 - m >= on_thr;
-        let thr = if on { on_thr } else { self.thr_off[i] };
+        let thr = if on { on_thr } else { off_thr };
         let sign = if on { 1.0 } else { -1.0 };
         while sign * (l1 - m) >= thr {
             let level = m + sign * thr;
@@ -477,6 +497,20 @@ mod tests {
         assert_eq!(times(PixelModel::V2), [124, 724, 1324, 1924]);
         // V1: a held crossing waited for the next step's start.
         assert_eq!(times(PixelModel::V1), [124, 1000]);
+    }
+
+    #[test]
+    fn a_held_crossing_fires_even_where_the_level_turns_back_later_in_the_step() {
+        // Up to 0.5 (two ON, the third held to 1324 µs), then back down to 0.1 in the next
+        // step: at 1324 µs the level is still above the held one (it falls below at about
+        // 1627 µs), so the ON fires then; the OFF crossings that follow wait for the
+        // refractory period (the first, due at 1752 µs, fires at 1924).
+        let mut s = one_pixel(PixelModel::V2, 600.0, 1e7);
+        let mut out = Vec::new();
+        s.step(0.0, 1000.0, &[0.5], ONE, &mut out);
+        s.step(1000.0, 2000.0, &[0.1], ONE, &mut out);
+        let got: Vec<(i64, bool)> = out.iter().map(|e| (e.t, e.on)).collect();
+        assert_eq!(got, [(124, true), (724, true), (1324, true), (1924, false)]);
     }
 
     #[test]
