@@ -449,6 +449,35 @@ fn interleaved_cameras_fill_packets_of_their_own() {
     assert_eq!(got, want);
 }
 
+/// One timestamp glitch an hour ahead neither holds its camera back nor lets the other
+/// cameras' events out of time order (by more than the writer's packets allow).
+#[test]
+fn a_timestamp_glitch_does_not_stall_the_time_merge() {
+    let mut events = synthetic_events(200_000);
+    events.truncate(200_000); // time-ordered: without the three odd events at the end
+    let glitch = (100_000..).find(|&i| events[i].0 == 0).unwrap();
+    events[glitch].1.t += 3_600_000_000;
+    let far = events[glitch].1.t;
+    let bytes = write_file(&two_cameras(), Compression::Lz4, &events);
+    let got = read_all(&bytes).expect("read").events;
+    assert_eq!(got.len(), events.len());
+    let mut latest = i64::MIN;
+    let mut worst = 0;
+    for (i, &(_, e)) in got.iter().enumerate() {
+        if e.t == far {
+            // The glitch leaves next to its neighbours in its camera's order.
+            assert!(
+                i.abs_diff(glitch) < 2 * WRITE_PACKET_EVENTS,
+                "{i} vs {glitch}"
+            );
+            continue;
+        }
+        worst = worst.max(latest.saturating_sub(e.t));
+        latest = latest.max(e.t);
+    }
+    assert!(worst < WRITE_PACKET_SPAN_US, "{worst} µs late");
+}
+
 /// The time merge buffers at most `MERGE_EVENTS` events: a file whose time stands still (no
 /// event is ever `MERGE_SPAN_US` old) is still read as it goes, not whole.
 #[test]
@@ -528,7 +557,15 @@ fn truncation_at_every_offset_is_an_error_or_a_clean_end() {
             match read_no_panic(&bytes[..cut], &what) {
                 Ok(got) => {
                     assert!(bounds.contains(&cut), "{what}: no error inside a record");
-                    assert_eq!(got.events[..], full[..got.events.len()], "{what}");
+                    // The cameras are merged by time over what the file holds: each camera's
+                    // events are a prefix of its own.
+                    for c in 0..2 {
+                        let of = |v: &[(u8, Event)]| -> Vec<Event> {
+                            v.iter().filter(|e| e.0 == c).map(|e| e.1).collect()
+                        };
+                        let (part, whole) = (of(&got.events), of(&full));
+                        assert_eq!(part[..], whole[..part.len()], "{what}");
+                    }
                 }
                 Err(ReadError::Truncated { offset, .. }) => {
                     assert!(!bounds.contains(&cut), "{what}");
@@ -631,10 +668,15 @@ fn flipped_structural_bytes_are_errors() {
             other => panic!("packet byte {pos}: {:?}", other.map(|r| r.events.len())),
         }
     }
-    // An event's x turned negative.
-    match flip(header_end + 8 + 32 + 16 * 5 + 9, 0x80) {
+    // An event's x turned negative (event 5 of the first packet that has six).
+    let bounds = packet_bounds(&bytes);
+    let packet = (bounds.windows(2))
+        .find(|w| w[1] - w[0] >= 8 + 32 + 16 * 6)
+        .map(|w| w[0])
+        .unwrap();
+    match flip(packet + 8 + 32 + 16 * 5 + 9, 0x80) {
         Err(ReadError::Corrupt { offset, message }) => {
-            assert_eq!(offset as usize, header_end);
+            assert_eq!(offset as usize, packet);
             assert!(message.contains("event 5"), "{message}");
         }
         other => panic!("negative x: {:?}", other.map(|r| r.events.len())),

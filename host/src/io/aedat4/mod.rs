@@ -48,7 +48,7 @@ pub const MAX_PACKET_BYTES: u64 = 256 << 20;
 /// Events per packet that [`Aedat4Writer`] writes at most.
 pub const WRITE_PACKET_EVENTS: usize = 4096;
 
-/// Longest time from a packet's first event to an event that [`Aedat4Writer`] lets arrive
+/// Longest time from a packet's earliest event to an event that [`Aedat4Writer`] lets arrive
 /// before it writes the packet, µs: how far a reader taking packets in file order can see
 /// time-ordered events of different cameras out of order.
 pub const WRITE_PACKET_SPAN_US: i64 = 10_000;
@@ -57,8 +57,9 @@ pub const WRITE_PACKET_SPAN_US: i64 = 10_000;
 /// it merges several cameras by time, µs (ten of DV's 10-ms packets).
 pub const MERGE_SPAN_US: i64 = 100_000;
 
-/// Events [`Aedat4Reader`] buffers at most while it merges several cameras (16 MiB): beyond,
-/// it gives the earliest ones whatever the file holds later.
+/// Events [`Aedat4Reader`] buffers while it merges several cameras before it gives the
+/// earliest ones whatever the file holds later (16 MiB): the buffer holds at most this many
+/// plus the packet being read.
 pub const MERGE_EVENTS: usize = 1 << 20;
 
 /// File offset of the IOHeader flatbuffer (after the magic and its u32 size prefix).

@@ -23,7 +23,7 @@ pub(super) const PACKET_HEAD: [u8; 32] = [
 ///
 /// Each camera fills a packet of its own, as DV records several cameras: a packet is written
 /// when it holds [`WRITE_PACKET_EVENTS`] events, or once an event arrives [`WRITE_PACKET_SPAN_US`]
-/// or more after its first one (whatever camera that event is of), and at
+/// or more after its earliest one (whatever camera that event is of), and at
 /// [`Aedat4Writer::finish`] (dropping the writer loses the open packets). So each camera's
 /// events keep their order exactly, and a reader that takes packets in file order (as
 /// [`super::Aedat4Reader`] does) sees events of time-ordered input out of order across cameras
@@ -36,7 +36,7 @@ pub struct Aedat4Writer<W: Write> {
     pub(super) streams: Vec<Option<i32>>,
     /// The `EventPacket` being filled for each stream.
     pub(super) open: Vec<OpenPacket>,
-    /// The earliest first event time of the open packets (`i64::MAX` when none is open).
+    /// The earliest event time of the open packets (`i64::MAX` when none is open).
     pub(super) oldest: i64,
     pub(super) compressed: Vec<u8>,
 }
@@ -46,8 +46,8 @@ pub(super) struct OpenPacket {
     /// [`PACKET_HEAD`] and the events so far.
     bytes: Vec<u8>,
     events: usize,
-    /// Time of its first event, µs.
-    first_t: i64,
+    /// Time of its earliest event, µs.
+    min_t: i64,
 }
 
 pub(super) fn invalid(message: String) -> io::Error {
@@ -73,7 +73,7 @@ impl<W: Write> Aedat4Writer<W> {
             .map(|_| OpenPacket {
                 bytes: PACKET_HEAD.to_vec(),
                 events: 0,
-                first_t: 0,
+                min_t: i64::MAX,
             })
             .collect();
         Ok(Self {
@@ -104,10 +104,8 @@ impl<W: Write> Aedat4Writer<W> {
                 self.flush_packet(s)?;
             }
             let p = &mut self.open[s];
-            if p.events == 0 {
-                p.first_t = e.t;
-                self.oldest = self.oldest.min(e.t);
-            }
+            p.min_t = p.min_t.min(e.t);
+            self.oldest = self.oldest.min(e.t);
             p.bytes.extend_from_slice(&e.t.to_le_bytes());
             p.bytes.extend_from_slice(&x.to_le_bytes());
             p.bytes.extend_from_slice(&y.to_le_bytes());
@@ -124,11 +122,11 @@ impl<W: Write> Aedat4Writer<W> {
         Ok(self.out)
     }
 
-    /// Writes every open packet whose first event is at or before `t`, oldest first.
+    /// Writes every open packet whose earliest event is at or before `t`, oldest first.
     fn flush_older(&mut self, t: i64) -> io::Result<()> {
         let mut due: Vec<(i64, usize)> = (self.open.iter().enumerate())
-            .filter(|(_, p)| p.events > 0 && p.first_t <= t)
-            .map(|(s, p)| (p.first_t, s))
+            .filter(|(_, p)| p.events > 0 && p.min_t <= t)
+            .map(|(s, p)| (p.min_t, s))
             .collect();
         due.sort_unstable();
         for (_, s) in due {
@@ -153,9 +151,10 @@ impl<W: Write> Aedat4Writer<W> {
         self.out.write_all(&self.compressed)?;
         p.bytes.truncate(PACKET_HEAD.len());
         p.events = 0;
+        p.min_t = i64::MAX;
         self.oldest = (self.open.iter())
             .filter(|p| p.events > 0)
-            .map(|p| p.first_t)
+            .map(|p| p.min_t)
             .min()
             .unwrap_or(i64::MAX);
         Ok(())
