@@ -191,6 +191,9 @@ pub struct EvalReport {
     pub predictor: String,
     /// Whether the data is synthetic (then these are not DHP19 figures).
     pub synthetic: bool,
+    /// The simulator's pixel models of synthetic data (`evpose sim --pixel-model`), as the
+    /// dataset's manifest records them (empty for real data and older datasets).
+    pub pixel_models: Vec<String>,
     /// MPJPE2D over everything, pixels.
     pub mpjpe2d_px: Option<f64>,
     /// MPJPE3D over everything, mm.
@@ -336,6 +339,7 @@ pub fn evaluate(
     Ok(EvalReport {
         predictor,
         synthetic: ds.manifest.synthetic,
+        pixel_models: ds.manifest.pixel_models.clone(),
         mpjpe2d_px: total.mpjpe2d_px,
         mpjpe3d_mm: total.mpjpe3d_mm,
         mpjpe3d_weighted_mm: (weighted.1 > 0).then(|| weighted.0 / weighted.1 as f64),

@@ -543,6 +543,13 @@ fn a_dataset_round_trips_through_its_files() {
     let events = dataset::read_events(&source.events).unwrap();
     let cams = dhp19_cameras().unwrap();
     let cameras = vec![(2, cams[2]), (3, cams[3])];
+    // `evpose eval` names the pixel model with the figures.
+    let front = [(2u8, &cams[2]), (3u8, &cams[3])];
+    let r = eval::evaluate(&ds, &ds.label2d, None, front, "labels".into(), 0.0).unwrap();
+    assert_eq!(
+        (r.pixel_models.as_slice(), r.synthetic),
+        (&["v2".to_string()][..], true)
+    );
     let want = dataset::windows(source, &events, &cameras, &dopts, 0).unwrap();
     assert_eq!(want.len(), ds.len());
     let points = ds.points_range(0, ds.len()).unwrap();

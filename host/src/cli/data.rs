@@ -320,7 +320,11 @@ fn fmt(v: Option<f64>) -> String {
 fn print_report(r: &EvalReport) {
     println!("{}", r.predictor);
     if r.synthetic {
-        println!("data: synthetic (evpose sim): these are not DHP19 figures");
+        let pixel = match r.pixel_models.as_slice() {
+            [] => String::new(),
+            models => format!(", pixel model {}", models.join(" + ")),
+        };
+        println!("data: synthetic (evpose sim{pixel}): these are not DHP19 figures");
     }
     println!(
         "MPJPE2D {} px over {} samples; MPJPE3D {} mm over {} windows{}",
