@@ -46,7 +46,7 @@ pub(super) struct Pending {
 /// their file order exactly, so a camera's own time glitches stay where they are (one far
 /// ahead of the events around it is due with the next). A damaged packet ends the read after the
 /// events buffered before it. The merge scans the cameras for each event: its cost grows with
-/// their number (`cargo bench -p evpose-host --bench readers`: 39 M events/s for four).
+/// their number (`cargo bench -p evpose-host --bench readers`: 41 M events/s for four).
 pub struct Aedat4Reader<R> {
     pub(super) inner: R,
     pub(super) info: StreamInfo,
@@ -72,6 +72,8 @@ pub(super) struct Merge {
     last: Vec<i64>,
     /// Each camera's last given event time (`i64::MIN` before its first).
     given: Vec<i64>,
+    /// When each camera's next event is due ([`Merge::refresh`]); `None` when none is buffered.
+    due: Vec<Option<i64>>,
     /// No packet is left to read (the file ended, or `error`).
     eof: bool,
     /// The error that ended the packets, returned once the buffered events are given.
@@ -79,22 +81,26 @@ pub(super) struct Merge {
 }
 
 impl Merge {
-    /// The camera whose next event is due first, if any is buffered, and when. A camera's next
-    /// event is due at its own time, unless it lies more than [`MERGE_SPAN_US`] after both the
+    /// Recomputes when camera `c`'s next event is due (after its queue's front changed). It
+    /// is due at its own time, unless it lies more than [`MERGE_SPAN_US`] after both the
     /// camera's previous event and its next one (a timestamp glitch forward): then at the next
     /// one's, so that a glitch an hour ahead leaves with the events around it instead of
     /// holding its camera back.
+    fn refresh(&mut self, c: usize) {
+        let q = &self.queues[c];
+        self.due[c] = q.front().map(|e| {
+            let far = e.t.saturating_sub(MERGE_SPAN_US);
+            match q.get(1) {
+                Some(next) if next.t < far && self.given[c] < far => next.t,
+                _ => e.t,
+            }
+        });
+    }
+
+    /// The camera whose next event is due first, if any is buffered, and when.
     fn earliest(&self) -> Option<(usize, i64)> {
-        (self.queues.iter().enumerate())
-            .filter_map(|(c, q)| {
-                let t = q.front()?.t;
-                let far = t.saturating_sub(MERGE_SPAN_US);
-                let due = match q.get(1) {
-                    Some(next) if next.t < far && self.given[c] < far => next.t,
-                    _ => t,
-                };
-                Some((c, due))
-            })
+        (self.due.iter().enumerate())
+            .filter_map(|(c, due)| Some((c, (*due)?)))
             .min_by_key(|&(c, t)| (t, c))
     }
 
@@ -318,6 +324,7 @@ impl<R: Read> Aedat4Reader<R> {
                 buffered: 0,
                 last: vec![i64::MIN; cameras],
                 given: vec![i64::MIN; cameras],
+                due: vec![None; cameras],
                 eof: false,
                 error: None,
             });
@@ -497,6 +504,7 @@ impl<R: Read> Aedat4Reader<R> {
                     batch.push(c as u8, e);
                     m.given[c] = e.t;
                     m.buffered -= 1;
+                    m.refresh(c);
                 }
             }
             // A camera's queue gives back what a burst made it grow to.
@@ -539,21 +547,29 @@ impl<R: Read> Aedat4Reader<R> {
         let (Some(m), p) = (self.merge.as_mut(), &mut self.pending) else {
             return Ok(());
         };
-        let Some(queue) = m.queues.get_mut(usize::from(p.camera)) else {
+        let c = usize::from(p.camera);
+        let Some(queue) = m.queues.get_mut(c) else {
             return Ok(());
         };
+        let mut result = Ok(());
         for chunk in self.plain[p.next..p.end].chunks_exact(EVENT_BYTES) {
-            let event = decode_event(chunk).ok_or_else(|| ReadError::Corrupt {
-                offset: p.packet_offset,
-                message: format!("event {} of the packet has a negative coordinate", p.index),
-            })?;
-            m.last[usize::from(p.camera)] = event.t;
+            let Some(event) = decode_event(chunk) else {
+                result = Err(ReadError::Corrupt {
+                    offset: p.packet_offset,
+                    message: format!("event {} of the packet has a negative coordinate", p.index),
+                });
+                break;
+            };
             queue.push_back(event);
             m.buffered += 1;
             p.index += 1;
             p.next += EVENT_BYTES;
         }
-        Ok(())
+        if let Some(e) = queue.back() {
+            m.last[c] = e.t;
+        }
+        m.refresh(c);
+        result
     }
 }
 
