@@ -330,7 +330,7 @@ pub fn dhp19_filter(events: &mut Vec<(u8, Event)>, width: u16, height: u16) -> F
     }
 }
 
-/// All events of a multi-camera recording, `(camera, event)` in file order.
+/// All events of a multi-camera recording, `(camera, event)` in the reader's order ([`crate::io::read_all`]).
 pub fn read_events(path: &Path) -> Result<Vec<(u8, Event)>> {
     read_recording(path).map(|(events, _)| events)
 }

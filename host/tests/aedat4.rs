@@ -412,7 +412,7 @@ fn writer_packet_sizes() {
 
 /// Cameras interleaved event by event share no packet but need not split them (they were
 /// one-event packets), a packet is written once an event comes `WRITE_PACKET_SPAN_US` after its
-/// first, whatever the event's camera, and the reader merges the cameras back by time.
+/// earliest, whatever the event's camera, and the reader merges the cameras back by time.
 #[test]
 fn interleaved_cameras_fill_packets_of_their_own() {
     // 0.25 µs apart on average: 8,000 events over 2 ms, cameras alternating.

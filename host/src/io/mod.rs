@@ -473,7 +473,8 @@ pub fn from_source<S: Read + Send + 'static>(
     Ok(reader)
 }
 
-/// Reads every event into memory, `(camera, event)` in file order.
+/// Reads every event into memory, `(camera, event)` in the reader's order (file order; AEDAT 4
+/// cameras merged by time).
 pub fn read_all(reader: &mut dyn EventReader) -> Result<Vec<(u8, Event)>, ReadError> {
     let mut batch = Batch::default();
     let mut out = Vec::new();
