@@ -671,6 +671,59 @@ fn evt3_decodes_spec_words() {
     assert!(error_text(decode(Dec::Evt3, &wide)).contains("16 bits"));
 }
 
+/// EVT 3.0 time words as OpenEB decodes them, and the time-low wraps expelliarmus leaves
+/// without a time-high word.
+#[test]
+fn evt3_time_words_follow_openeb() {
+    let mut f = raw_header(&["evt 3.0", "geometry 1280x720"]);
+    evt3_word(&mut f, 0x8, 5);
+    evt3_word(&mut f, 0x0, 1);
+    evt3_word(&mut f, 0x6, 0x700);
+    evt3_word(&mut f, 0x2, 1); // t = 5 << 12 | 0x700
+    evt3_word(&mut f, 0x6, 0x6F5); // a time low below the one before is taken as given
+    evt3_word(&mut f, 0x2, 2);
+    evt3_word(&mut f, 0x8, 5); // the same time high again keeps the time low
+    evt3_word(&mut f, 0x2, 3);
+    evt3_word(&mut f, 0x8, 6); // a new period starts at time low 0
+    evt3_word(&mut f, 0x2, 4);
+    evt3_word(&mut f, 0x6, 0xFF0);
+    evt3_word(&mut f, 0x2, 5);
+    evt3_word(&mut f, 0x6, 0x010); // back by more than 0x800, no time high: the next period
+    evt3_word(&mut f, 0x2, 6);
+    evt3_word(&mut f, 0x6, 0x7FF);
+    evt3_word(&mut f, 0x6, 0x000); // back by 0x7FF only: as given
+    evt3_word(&mut f, 0x2, 7);
+    // An implied period across the 12-bit time high's wrap, then the time-high word the
+    // implied period already stands for.
+    evt3_word(&mut f, 0x8, 0xFFF);
+    evt3_word(&mut f, 0x6, 0xF00);
+    evt3_word(&mut f, 0x2, 8);
+    evt3_word(&mut f, 0x6, 0x005);
+    evt3_word(&mut f, 0x2, 9);
+    evt3_word(&mut f, 0x8, 0x000);
+    evt3_word(&mut f, 0x2, 10);
+    let d = decode(Dec::Evt3, &f).unwrap();
+    let t = |high: i64, low: i64| (high << 12) | low;
+    let times: Vec<i64> = d.events.iter().map(|(_, e)| e.t).collect();
+    assert_eq!(
+        times,
+        [
+            t(5, 0x700),
+            t(5, 0x6F5),
+            t(5, 0x6F5),
+            t(6, 0),
+            t(6, 0xFF0),
+            t(7, 0x010),
+            t(7, 0),
+            t(0xFFF, 0xF00),
+            t(0x1000, 0x005),
+            t(0x1000, 0x005),
+        ]
+    );
+    assert_eq!(d.notes.implied_time_highs, 2);
+    assert_eq!(d.notes.timestamp_wraps, 1);
+}
+
 #[test]
 fn evt_round_trips_and_batches() {
     let events = synthetic(200_000, 1280, 720, 1, 0);

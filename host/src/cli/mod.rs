@@ -286,6 +286,10 @@ fn info(a: &InfoArgs) -> Result<()> {
             "events dropped before the stream gave their time base",
         ),
         (n.timestamp_wraps, "timestamp counter wraps unwrapped"),
+        (
+            n.implied_time_highs,
+            "EVT 3.0 time-low wraps without a time-high word, taken as the next period",
+        ),
     ] {
         if count > 0 {
             println!("note:       {count} {what}");

@@ -8,7 +8,12 @@
 //! OpenEB decides) or that holds control bytes (event words whose first byte happens to be
 //! `%` = 0x25). The encoding comes from `% format` or `% evt`; `--format evt2|evt3`
 //! overrides it (recorded in [`ReadNotes::assumptions`]). EVT 2.1 is refused. The size comes
-//! from `% format …;width=…;height=…` or `% geometry`, else from `--width/--height`.
+//! from `% format …;width=…;height=…` or `% geometry`; else, in files of Prophesee's own
+//! cameras written before those lines existed, from `% system_ID` through OpenEB's table
+//! (Gen3.0 and Gen3.1: 640 × 480; Gen4.0, Gen4.1 and IMX636: 1280 × 720) unless
+//! `--width/--height` give one (expelliarmus writes a fixed header, `system_ID` 21 or 48,
+//! whatever the events' sensor); else from `--width/--height`. In EVT 3.0 a time-high word that changes the period sets the time low
+//! to 0 (OpenEB's decoder does the same).
 //!
 //! # EVT 2.0
 //!
@@ -37,7 +42,11 @@
 //!
 //! The time counters wrap (EVT 2.0 after 2³⁴ µs, EVT 3.0 after 2²⁴ µs ≈ 16.8 s): a time-high
 //! word more than half the range below the previous one is a wrap, counted in
-//! [`ReadNotes::timestamp_wraps`]. Events before the first time-high word (or, in EVT 3.0,
+//! [`ReadNotes::timestamp_wraps`]. In EVT 3.0 a time-low word more than half its range (2,048
+//! µs) below the previous one, with no time-high word between them, starts the next time-high
+//! period: a conforming stream gives the time-high word first, but expelliarmus (a Python
+//! reader and writer) writes one time-high word per file and lets the time low wrap; these
+//! are counted in [`ReadNotes::implied_time_highs`]. Events before the first time-high word (or, in EVT 3.0,
 //! before the first y address) have no time base and are dropped and counted in
 //! [`ReadNotes::dropped_events`], as OpenEB does. Reserved word types, pixels outside a known
 //! sensor (or x beyond 65535) and a file that ends inside a word are errors naming the word's
@@ -112,6 +121,32 @@ impl PercentHeader {
             .or_else(|| self.get("geometry").and_then(parse_geometry))
             .or_else(from_lines)
             .filter(|&(w, h)| w > 0 && h > 0)
+    }
+
+    /// The sensor size that OpenEB gives a Prophesee camera's `% system_ID` when the header
+    /// states none (files of Metavision before 2.2 or so), with the sensor's name; only for
+    /// files whose integrator is Prophesee, as OpenEB decides (`psee_raw_file_header.cpp`).
+    pub(crate) fn system_id_size(&self) -> Option<((u16, u16), &'static str)> {
+        let integrators = [
+            "integrator_name",
+            "camera_integrator_name",
+            "plugin_integrator_name",
+        ];
+        let mut named = integrators.iter().filter_map(|k| self.get(k)).peekable();
+        named.peek()?;
+        if !named.all(|v| v == "Prophesee") {
+            return None;
+        }
+        let vga = (640, 480);
+        let hd = (1280, 720);
+        Some(match self.get("system_id")?.trim().parse::<u32>().ok()? {
+            21 | 23 | 25 | 29 | 33 | 151 | 153 | 161 => (vga, "Gen3.0"),
+            28 | 34 | 35 | 40 | 41 | 162 => (vga, "Gen3.1"),
+            26 | 30 | 31 | 46 => (hd, "Gen4.0"),
+            39 | 48 => (hd, "Gen4.1"),
+            49 | 50 => (hd, "IMX636"),
+            _ => return None,
+        })
     }
 
     /// The encoding the header names, as written (`EVT3`, `3.0`, …), and what it means.
@@ -207,6 +242,8 @@ struct State {
     high_counter: Unwrapper,
     /// EVT 3.0: time low, row, vector base and polarity.
     low: i64,
+    /// EVT 3.0: a time-low word came since the last time-high word.
+    low_seen: bool,
     y: Option<u16>,
     base_x: u32,
     on: bool,
@@ -218,6 +255,8 @@ pub struct EvtReader<R> {
     info: StreamInfo,
     encoding: Encoding,
     size: Option<(u16, u16)>,
+    /// The size came from `% system_ID` (a guess that `--width/--height` can correct).
+    size_from_id: bool,
     state: State,
     notes: ReadNotes,
     finished: bool,
@@ -261,9 +300,18 @@ impl<R: Read> EvtReader<R> {
                 ))
             }
         };
-        let size = match header.size() {
-            Some(s) => Some(s),
-            None => {
+        let from_id = header.system_id_size().filter(|_| size.is_none());
+        let size = match (header.size(), from_id) {
+            (Some(s), _) => Some(s),
+            (None, Some(((w, h), sensor))) => {
+                notes.assumptions.push(format!(
+                    "sensor size {w}x{h} from `% system_ID {}` (a {sensor} camera, as OpenEB \
+                     reads a header without a size; --width/--height override it)",
+                    header.get("system_id").unwrap_or_default()
+                ));
+                Some((w, h))
+            }
+            (None, None) => {
                 if let Some((w, h)) = size {
                     notes
                         .assumptions
@@ -290,10 +338,12 @@ impl<R: Read> EvtReader<R> {
             },
             encoding,
             size,
+            size_from_id: header.size().is_none() && from_id.is_some(),
             state: State {
                 high: None,
                 high_counter: Unwrapper::new(bits),
                 low: 0,
+                low_seen: false,
                 y: None,
                 base_x: 0,
                 on: false,
@@ -330,6 +380,7 @@ impl<R: Read> EvtReader<R> {
                 state: &mut self.state,
                 notes: &mut self.notes,
                 size: self.size,
+                size_from_id: self.size_from_id,
                 batch,
                 base,
                 limit,
@@ -349,6 +400,7 @@ struct Decoder<'a> {
     state: &'a mut State,
     notes: &'a mut ReadNotes,
     size: Option<(u16, u16)>,
+    size_from_id: bool,
     batch: &'a mut Batch,
     /// File offset of the first word.
     base: u64,
@@ -360,7 +412,11 @@ impl Decoder<'_> {
     fn check(&self, offset: u64, x: u32, y: u32) -> Result<(), ReadError> {
         match self.size {
             Some((w, h)) if x >= u32::from(w) || y >= u32::from(h) => {
-                Err(out_of_sensor(offset, x, y, (w, h)))
+                let mut e = out_of_sensor(offset, x, y, (w, h));
+                if let (true, ReadError::Corrupt { message, .. }) = (self.size_from_id, &mut e) {
+                    message.push_str(" (the size `system_ID` implies; pass --width/--height)");
+                }
+                Err(e)
             }
             None if x > u32::from(u16::MAX) => Err(ReadError::Corrupt {
                 offset,
@@ -434,7 +490,25 @@ impl Decoder<'_> {
                 }
                 0x4 => self.vector(i, u32::from(w & 0xFFF), 12)?,
                 0x5 => self.vector(i, u32::from(w & 0xFF), 8)?,
-                0x6 => s.low = i64::from(w & 0xFFF),
+                0x6 => {
+                    let low = i64::from(w & 0xFFF);
+                    // Time low back by more than half its range with no time-high word since
+                    // the last time low: its counter wrapped into the next time-high period
+                    // (expelliarmus writes one time-high word per file).
+                    if let (true, Some(high)) = (s.low_seen && low + 0x800 < s.low, s.high) {
+                        let offset = self.base + (i * 2) as u64;
+                        s.high = Some(
+                            s.high_counter
+                                .unwrap(((high + 1) & 0xFFF) as u64)
+                                .filter(|&h| h < 1 << 50)
+                                .ok_or_else(|| time_overflow(offset))?,
+                        );
+                        self.notes.timestamp_wraps = s.high_counter.wraps();
+                        self.notes.implied_time_highs += 1;
+                    }
+                    s.low = low;
+                    s.low_seen = true;
+                }
                 0x8 => {
                     let offset = self.base + (i * 2) as u64;
                     let high = s
@@ -442,7 +516,12 @@ impl Decoder<'_> {
                         .unwrap(u64::from(w & 0xFFF))
                         .filter(|&h| h < 1 << 50)
                         .ok_or_else(|| time_overflow(offset))?;
+                    // A new time-high period starts at time low 0 (as OpenEB decodes it).
+                    if s.high != Some(high) {
+                        s.low = 0;
+                    }
                     s.high = Some(high);
+                    s.low_seen = false;
                     self.notes.timestamp_wraps = s.high_counter.wraps();
                 }
                 0x7 | 0xA | 0xE | 0xF => self.notes.skipped_records += 1,

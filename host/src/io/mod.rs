@@ -298,6 +298,9 @@ pub struct ReadNotes {
     pub dropped_events: u64,
     /// Wraps of the file's timestamp counter that were unwrapped.
     pub timestamp_wraps: u64,
+    /// EVT 3.0 time-low wraps with no time-high word before them, taken as the next time-high
+    /// period (files written by expelliarmus; a conforming stream has none).
+    pub implied_time_highs: u64,
     /// Decisions taken where the file is ambiguous (sensor model, time unit, …).
     pub assumptions: Vec<String>,
     /// Times (µs, on the events' clock) of the first [`MAX_SPECIAL_TIMES`] AEDAT 2.0 DAVIS

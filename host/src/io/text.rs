@@ -8,8 +8,9 @@
 //! * Empty lines and lines starting with `#` or `%` are comments.
 //! * Without a header row a line has exactly four fields, `t x y p`. A first non-comment line
 //!   that is not all numbers is a header row naming the columns, in any order and among
-//!   others: `t`/`ts`/`time`/`timestamp`, `x`, `y`, `p`/`pol`/`polarity`; a unit suffix on the
-//!   time column (`t_us`, `timestamp[s]`, `time(ms)`) states the time unit. Every line then has
+//!   others: `t`/`ts`/`time`/`timestamp`, `x`, `y`, `p`/`pol`/`polarity`/`on`; a unit suffix
+//!   on the time column (`t_us`, `timestamp[s]`, `time(ms)`) states the time unit, and
+//!   `x@W`, `y@H` (faery's CSV: `t,x@346,y@260,on`) the sensor size. Every line then has
 //!   as many fields as the header row. A comment line that names all four columns the same
 //!   way (`# x y t p`, as NumPy's `savetxt(..., header="x y t p")` writes it) is that header.
 //! * x and y are integers 0–65535 (`12.0` is accepted), p is 0/1, -1/1 or true/false (any
@@ -112,6 +113,8 @@ impl<R: Read> TextReader<R> {
         let mut notes = ReadNotes::default();
         let mut cols = T_X_Y_P;
         let mut header_unit = None;
+        // A size in the header row's names (`x@W`, `y@H`).
+        let mut header_size = None;
         // A first line of two integers is the sensor size (the e2vid / RPG `W H` convention).
         let mut stated_size = None;
         let mut first = true;
@@ -134,12 +137,13 @@ impl<R: Read> TextReader<R> {
                 // writes `# x y t p`); any other comment is skipped.
                 let named = trim(body.get(1..).unwrap_or_default());
                 let mut fields = [&[][..]; MAX_FIELDS];
-                if let Ok((c, u)) = split_fields(named, &mut fields)
+                if let Ok(h) = split_fields(named, &mut fields)
                     .map_err(String::from)
                     .and_then(|n| header_columns(&fields[..n]))
                 {
-                    cols = c;
-                    header_unit = u;
+                    cols = h.cols;
+                    header_unit = h.unit;
+                    header_size = h.size.or(header_size);
                     notes.assumptions.push(format!(
                         "columns from the commented header row: {}",
                         String::from_utf8_lossy(body)
@@ -165,9 +169,10 @@ impl<R: Read> TextReader<R> {
             if fields[..n].iter().all(|f| is_value(f)) {
                 break;
             }
-            let (c, u) = header_columns(&fields[..n]).map_err(|m| bad_line(at, line, &m))?;
-            cols = c;
-            header_unit = u;
+            let h = header_columns(&fields[..n]).map_err(|m| bad_line(at, line, &m))?;
+            cols = h.cols;
+            header_unit = h.unit;
+            header_size = h.size.or(header_size);
             notes.assumptions.push(format!(
                 "columns from the header row: {}",
                 String::from_utf8_lossy(body)
@@ -199,8 +204,13 @@ impl<R: Read> TextReader<R> {
                 (u, u == TimeUnit::Us)
             }
         };
+        if let Some((w, h)) = header_size.filter(|_| stated_size.is_none()) {
+            notes.assumptions.push(format!(
+                "sensor size {w} x {h} from the header row (`x@{w}`, `y@{h}`)"
+            ));
+        }
         // A size the file states wins over the caller's (as for every format).
-        let size = stated_size.or(size);
+        let size = stated_size.or(header_size).or(size);
         Ok(Self {
             src,
             info: StreamInfo {
@@ -567,17 +577,37 @@ impl Decimal {
     }
 }
 
-/// The columns and time unit a header row names.
-fn header_columns(names: &[&[u8]]) -> Result<(Columns, Option<TimeUnit>), String> {
+/// What a header row names: the columns, the time unit and the sensor size.
+struct Header {
+    cols: Columns,
+    unit: Option<TimeUnit>,
+    /// From `x@W` and `y@H` column names (faery's CSV).
+    size: Option<(u16, u16)>,
+}
+
+/// The columns, time unit and sensor size a header row names.
+fn header_columns(names: &[&[u8]]) -> Result<Header, String> {
     let mut t = None;
     let mut x = None;
     let mut y = None;
     let mut p = None;
     let mut unit = None;
+    let mut width = None;
+    let mut height = None;
     for (i, raw) in names.iter().enumerate() {
-        let name = String::from_utf8_lossy(raw)
+        let mut name = String::from_utf8_lossy(raw)
             .trim_matches('"')
             .to_ascii_lowercase();
+        // faery writes the sensor size into the coordinates' names: `x@346`, `y@260`.
+        if let Some((axis, n)) = name.split_once('@') {
+            let n = n.parse::<u16>().ok().filter(|&n| n > 0);
+            match (axis, n) {
+                ("x", Some(n)) => width = Some(n),
+                ("y", Some(n)) => height = Some(n),
+                _ => continue,
+            }
+            name = axis.to_string();
+        }
         let split = name.find(['_', '[', '(', ' ']).unwrap_or(name.len());
         let (base, rest) = name.split_at(split);
         let suffix = rest.trim_matches(|c| matches!(c, '_' | '[' | ']' | '(' | ')' | ' '));
@@ -604,8 +634,8 @@ fn header_columns(names: &[&[u8]]) -> Result<(Columns, Option<TimeUnit>), String
         }
     }
     match (t, x, y, p) {
-        (Some(t), Some(x), Some(y), Some(p)) => Ok((
-            Columns {
+        (Some(t), Some(x), Some(y), Some(p)) => Ok(Header {
+            cols: Columns {
                 t,
                 x,
                 y,
@@ -613,7 +643,8 @@ fn header_columns(names: &[&[u8]]) -> Result<(Columns, Option<TimeUnit>), String
                 count: names.len(),
             },
             unit,
-        )),
+            size: width.zip(height),
+        }),
         _ => Err(format!(
             "neither four numbers nor a header row naming t, x, y and p columns: {}",
             names
@@ -678,8 +709,8 @@ pub fn looks_like_text(head: &[u8]) -> bool {
         return match cols {
             None if numeric => n == 4,
             None => match header_columns(&fields[..n]) {
-                Ok((c, _)) => {
-                    cols = Some(c);
+                Ok(h) => {
+                    cols = Some(h.cols);
                     continue;
                 }
                 Err(_) => false,
