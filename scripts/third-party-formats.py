@@ -12,7 +12,8 @@ EVT 3.0, DAT), faery (Rust; EVT 2.0, EVT 3.0, DAT, AEDAT 4, CSV) and aedat (Rust
    tests/sample-files) read by evpose and by both engines.
 4. `--write-fixtures DIR`: the small files `host/tests/third_party.rs` reads, written by each
    engine: 2,000 street events; 64 events over 40 s on a 1280 x 720 sensor (EVT 3.0's time
-   wraps after 16.8 s); 24 rows of events at one timestamp each (EVT 3.0 vector words).
+   wraps after 16.8 s); 24 rows of events at one timestamp each (EVT 3.0 vector words); and
+   faery's DAT version 1 of 1,000 street events inside a 304 x 240 sensor.
 
 usage: python3 -m venv /tmp/tp && /tmp/tp/bin/pip install expelliarmus==1.1.12 faery==0.7.1 \\
            aedat==2.3.0
@@ -85,15 +86,22 @@ def as_rows(t, x, y, p):
                      np.asarray(p, np.int64)], axis=1)
 
 
-def write_all(ev, size, out, stem):
-    """Every engine's file of the events `ev`; returns [(name, path)]."""
+def write_all(ev, size, out, stem, only=None):
+    """Every engine's file of the events `ev` (or those named in `only`); [(name, path)]."""
     ex, fa = structured(ev)
     files = []
     for enc, ext in EXPELLIARMUS.items():
+        if only and f"expelliarmus {enc}" not in only:
+            continue
         path = out / f"{stem}.expelliarmus-{enc}.{ext}"
         expelliarmus.Wizard(encoding=enc).save(str(path), ex)
         files.append((f"expelliarmus {enc}", path))
-    for version, ext in FAERY.items():
+    faery_formats = dict(FAERY)
+    if size[0] <= 512 and size[1] <= 256:
+        faery_formats["dat1"] = "dat"  # 9-bit x, 8-bit y
+    for version, ext in faery_formats.items():
+        if only and f"faery {version}" not in only:
+            continue
         path = out / f"{stem}.faery-{version}.{ext}"
         kw = {"version": version} if ext in ("raw", "dat") else {}
         faery.events_stream_from_array(fa, size).to_file(str(path), zero_t0=False, **kw)
@@ -116,6 +124,8 @@ def main():
     if ev is None:
         sys.exit(f"cannot read {STREET}: {why}")
     ev[:, 2] -= ev[0, 2]
+    # An ATIS-sized sensor (304 x 240) for DAT version 1 (9-bit x, 8-bit y).
+    atis = ev[(ev[:, 0] < 304) & (ev[:, 1] < 240)]
     # Runs along rows at one timestamp (EVT 3.0 vector words), both polarities, gaps of 1 ms.
     rows_rng = np.random.default_rng(11)
     rows = []
@@ -133,7 +143,7 @@ def main():
         d = pathlib.Path(d)
         # 1. Engines write, evpose reads.
         for stem, events, size in [("street", ev, (346, 260)), ("sparse", sparse, (1280, 720)),
-                                   ("rows", rows, (1280, 720))]:
+                                   ("rows", rows, (1280, 720)), ("atis", atis, (304, 240))]:
             for name, path in write_all(events, size, d, stem):
                 if stem == "sparse" and name == "expelliarmus evt3":
                     continue  # one time-high word per file: gaps over 2,048 us are ambiguous
@@ -193,10 +203,13 @@ def main():
     if a.write_fixtures:
         out = a.write_fixtures
         out.mkdir(parents=True, exist_ok=True)
-        for stem, events, size in [("street", ev[:2000], (346, 260)),
-                                   ("sparse", sparse, (1280, 720)), ("rows", rows, (1280, 720))]:
+        for stem, events, size, only in [
+                ("street", ev[:2000], (346, 260), None),
+                ("sparse", sparse, (1280, 720), None),
+                ("rows", rows, (1280, 720), None),
+                ("atis", atis[:1000], (304, 240), ["faery dat1"])]:
             np.save(out / f"{stem}.npy", events.astype(np.int32))
-            for name, path in write_all(events, size, out, stem):
+            for name, path in write_all(events, size, out, stem, only):
                 if stem == "sparse" and name == "expelliarmus evt3":
                     path.unlink()
         print(f"fixtures in {out}")

@@ -807,8 +807,19 @@ fn dat_decodes_records() {
     assert!(error_text(decode(Dec::Dat, &trig)).contains("external-trigger"));
     let size16 = [&f[..start as usize - 2], &[0x0C, 16][..]].concat();
     assert!(error_text(decode(Dec::Dat, &size16)).contains("event size 16"));
-    let v1 = b"% Version 1\n\x00\x08".to_vec();
-    assert!(error_text(decode(Dec::Dat, &v1)).contains("version"));
+    let v0 = b"% Version 0\n\x00\x08".to_vec();
+    assert!(error_text(decode(Dec::Dat, &v0)).contains("version"));
+    // Version 1: 9-bit x, 8-bit y, polarity at bit 17 (bits 21-31 unused).
+    let mut v1 = b"% Version 1\n% Width 304\n% Height 240\n\x0c\x08".to_vec();
+    dat_record(&mut v1, 5, 303 | (239 << 9) | (1 << 17) | (0x7FF << 21));
+    dat_record(&mut v1, 6, 2 | (3 << 9));
+    let d = decode(Dec::Dat, &v1).unwrap();
+    assert_eq!(
+        d.events,
+        events_of(&[ev(0, 303, 239, 5, true), ev(0, 2, 3, 6, false)])
+    );
+    dat_record(&mut v1, 7, 2 << 17);
+    assert!(error_text(decode(Dec::Dat, &v1)).contains("polarity 2"));
     // No header: records from the first byte.
     let body = &f[start as usize..];
     let d = decode(Dec::Dat, body).unwrap();

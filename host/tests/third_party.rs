@@ -1,5 +1,6 @@
 //! Files written by other tools read as the events those tools were given: expelliarmus 1.1.12
-//! (EVT 2.0, EVT 3.0, DAT) and faery 0.7.1 (EVT 2.0, EVT 3.0, DAT, AEDAT 4, CSV) wrote
+//! (EVT 2.0, EVT 3.0, DAT) and faery 0.7.1 (EVT 2.0, EVT 3.0, DAT versions 1 and 2, AEDAT 4,
+//! CSV) wrote
 //! `fixtures/third-party/` from the arrays beside them (`scripts/third-party-formats.py
 //! --write-fixtures`, which also runs the comparison the other way and on real camera files).
 
@@ -58,6 +59,8 @@ fn every_engine_file_reads_as_the_events_it_was_given() {
         ("street", None, 8),
         ("sparse", Some((1280, 720)), 7),
         ("rows", Some((1280, 720)), 8),
+        // faery's DAT version 1 (9-bit x, 8-bit y) of a 304 x 240 sensor.
+        ("atis", None, 1),
     ] {
         let want = expected(stem);
         let paths = files(stem);
@@ -77,7 +80,7 @@ fn every_engine_file_reads_as_the_events_it_was_given() {
             read += 1;
         }
     }
-    assert_eq!(read, 23);
+    assert_eq!(read, 24);
 }
 
 #[test]

@@ -9,6 +9,10 @@
 //! 8-byte LE records: u32 t (µs), u32 with x = bits 0–13, y = bits 14–27, polarity = bits 28–31
 //! ```
 //!
+//! `% Version 1` files (older ATIS sensors, up to 512 × 256) pack the second word as x = bits
+//! 0–8, y = bits 9–16, polarity = bits 17–20 (bits 21–31 unused), as faery writes and reads
+//! them; version 2 and later, and files without a version line, use the layout above.
+//!
 //! As Prophesee's `psee_loader` does, the header ends at the first line that does not start
 //! with `%`, and a file without any header line has no type/size bytes either. The sensor size
 //! comes from the `Width`/`Height` (or `geometry`) lines, else from `--width/--height`.
@@ -17,7 +21,7 @@
 //!
 //! Timestamps are a 32-bit counter: a step back by more than 2³¹ µs is a wrap, counted in
 //! [`ReadNotes::timestamp_wraps`]. Errors: a file of other events (0x0E external triggers, …)
-//! or other record sizes, `% Version 0/1` (DAT v1 has another bit layout), a polarity other
+//! or other record sizes, `% Version 0` or a version that is not a number, a polarity other
 //! than 0 or 1, a pixel outside a known sensor, and a file that ends inside a record, each
 //! naming the offset.
 
@@ -32,11 +36,38 @@ use super::{Batch, CameraInfo, Format, ReadError, ReadNotes, StreamInfo, BATCH_E
 /// Bytes per record.
 pub const RECORD_BYTES: usize = 8;
 
+/// Where a record's second word keeps x, y and the polarity.
+#[derive(Clone, Copy)]
+struct Layout {
+    x_mask: u32,
+    y_shift: u32,
+    y_mask: u32,
+    p_shift: u32,
+}
+
+impl Layout {
+    /// `% Version 1`: 9-bit x, 8-bit y, polarity from bit 17.
+    const V1: Self = Self {
+        x_mask: 0x1FF,
+        y_shift: 9,
+        y_mask: 0xFF,
+        p_shift: 17,
+    };
+    /// Version 2 and later: 14-bit x and y, polarity in the top four bits.
+    const V2: Self = Self {
+        x_mask: 0x3FFF,
+        y_shift: 14,
+        y_mask: 0x3FFF,
+        p_shift: 28,
+    };
+}
+
 /// Streaming `.dat` reader.
 pub struct DatReader<R> {
     src: Source<R>,
     info: StreamInfo,
     size: Option<(u16, u16)>,
+    layout: Layout,
     time: Unwrapper,
     notes: ReadNotes,
     finished: bool,
@@ -48,16 +79,16 @@ impl<R: Read> DatReader<R> {
         let mut src = Source::new(inner, 0);
         let header = PercentHeader::read(&mut src, false)?;
         let mut notes = ReadNotes::default();
-        if let Some(v) = header.get("version") {
-            match v.parse::<u32>() {
-                Ok(v) if v >= 2 => {}
-                _ => {
-                    return Err(ReadError::Unsupported(format!(
-                        "DAT version {v:?}; versions 2 and later are read"
-                    )))
-                }
+        let layout = match header.get("version").map(|v| (v, v.parse::<u32>())) {
+            None => Layout::V2,
+            Some((_, Ok(1))) => Layout::V1,
+            Some((_, Ok(v))) if v >= 2 => Layout::V2,
+            Some((v, _)) => {
+                return Err(ReadError::Unsupported(format!(
+                    "DAT version {v:?}; versions 1 and later are read"
+                )))
             }
-        }
+        };
         if header.lines.is_empty() {
             notes
                 .assumptions
@@ -117,6 +148,7 @@ impl<R: Read> DatReader<R> {
                 event_count: None,
             },
             size,
+            layout,
             time: Unwrapper::new(32),
             notes,
             finished: false,
@@ -145,9 +177,10 @@ impl<R: Read> DatReader<R> {
                 let ts = u32::from_le_bytes([r[0], r[1], r[2], r[3]]);
                 let w = u32::from_le_bytes([r[4], r[5], r[6], r[7]]);
                 let offset = base + (i * RECORD_BYTES) as u64;
-                let x = w & 0x3FFF;
-                let y = (w >> 14) & 0x3FFF;
-                let p = w >> 28;
+                let l = self.layout;
+                let x = w & l.x_mask;
+                let y = (w >> l.y_shift) & l.y_mask;
+                let p = (w >> l.p_shift) & 0xF;
                 if p > 1 {
                     return Err(ReadError::Corrupt {
                         offset,
