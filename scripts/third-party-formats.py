@@ -1,15 +1,18 @@
 #!/usr/bin/env python3
 """evpose's readers and AEDAT 4 writer against independent engines: expelliarmus (C; EVT 2.0,
-EVT 3.0, DAT), faery (Rust; EVT 2.0, EVT 3.0, DAT, AEDAT 4, CSV) and aedat (Rust; AEDAT 4).
+EVT 3.0, DAT), faery (Rust; EVT 2.0, EVT 3.0, DAT 1 and 2, AEDAT 4, CSV, Event Stream) and
+aedat (Rust; AEDAT 4).
 
 1. Each engine writes the street recording's events (`../shared/recordings/davis346-street.aedat4`,
    read by `evpose convert`, times from 0) in every format it writes; `evpose convert` reads each
    file back; the events must equal the ones written, exactly.
 2. The engines read evpose's AEDAT 4 (the street events, and the bundled four-camera clip) and
    the spec-built fixtures in host/tests/fixtures/formats; they must read what evpose reads.
-3. `--real DIR`: real Prophesee camera files (`*.raw`, e.g. expelliarmus's test files
-   `evt2_sample.raw` and `evt3_sample.raw`, github.com/open-neuromorphic/expelliarmus,
-   tests/sample-files) read by evpose and by both engines.
+3. `--real DIR`: real camera files read by evpose and the engines: Prophesee RAW (`*.raw`, e.g.
+   expelliarmus's test files `evt2_sample.raw` and `evt3_sample.raw`,
+   github.com/open-neuromorphic/expelliarmus, tests/sample-files) against both engines, and
+   Event Stream (`*.es`, e.g. `examples/dvs.es` of github.com/neuromorphic-paris/event_stream)
+   against faery.
 4. `--write-fixtures DIR`: the small files `host/tests/third_party.rs` reads, written by each
    engine: 2,000 street events; 64 events over 40 s on a 1280 x 720 sensor (EVT 3.0's time
    wraps after 16.8 s); 24 rows of events at one timestamp each (EVT 3.0 vector words); and
@@ -37,7 +40,8 @@ STREET = REPO.parent / "shared" / "recordings" / "davis346-street.aedat4"
 CLIP = REPO / "assets" / "clip" / "S4242-00_side-kick.aedat"
 FIXTURES = REPO / "host" / "tests" / "fixtures" / "formats"
 EXPELLIARMUS = {"evt2": "raw", "evt3": "raw", "dat": "dat"}
-FAERY = {"evt2": "raw", "evt3": "raw", "dat2": "dat", "aedat4": "aedat4", "csv": "csv"}
+FAERY = {"evt2": "raw", "evt3": "raw", "dat2": "dat", "aedat4": "aedat4", "csv": "csv",
+         "es": "es"}
 
 failures = []
 
@@ -199,6 +203,9 @@ def main():
                 dt = want[:, 2] - got[:, 2]
                 print(f"     times: {np.count_nonzero(dt)} of {len(dt)} differ "
                       f"(by {dt.min()} to {dt.max()} us)")
+        for es in sorted(a.real.glob("*.es")):
+            got, why = evpose_read(a.evpose, es)
+            compare(f"real {es.name}: evpose against faery", got, faery_read(es), why)
     # 4. The committed fixtures.
     if a.write_fixtures:
         out = a.write_fixtures

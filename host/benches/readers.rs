@@ -106,6 +106,7 @@ fn files(dir: &Path) -> Vec<(&'static str, PathBuf)> {
     evt3.extend_from_slice(&evt3_body(&prophesee));
     put("evt3", "evt3.raw", evt3);
     put("dat", "cd.dat", dat_file(&prophesee, 1280, 720));
+    put("es (DVS)", "dvs.es", es_dvs_file(&prophesee, 1280, 720));
     put(
         "text (t x y p, seconds)",
         "events.txt",

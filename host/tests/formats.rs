@@ -16,6 +16,7 @@ use evpose_host::io::aedat2::Aedat2Reader;
 use evpose_host::io::aedat3::Aedat3Reader;
 use evpose_host::io::aedat4::{Aedat4Reader, Aedat4Writer, Compression};
 use evpose_host::io::dat::DatReader;
+use evpose_host::io::es::EsReader;
 use evpose_host::io::evt::EvtReader;
 use evpose_host::io::text::TextReader;
 use evpose_host::io::{
@@ -149,9 +150,10 @@ enum Dec {
     Dat,
     Text,
     Aedat4,
+    Es,
 }
 
-const DECODERS: [Dec; 8] = [
+const DECODERS: [Dec; 9] = [
     Dec::Aedat2,
     Dec::Aedat2Dhp19,
     Dec::Aedat3,
@@ -160,6 +162,7 @@ const DECODERS: [Dec; 8] = [
     Dec::Dat,
     Dec::Text,
     Dec::Aedat4,
+    Dec::Es,
 ];
 
 fn decode(dec: Dec, bytes: &[u8]) -> Result<Decoded, ReadError> {
@@ -176,6 +179,7 @@ fn decode_sized(dec: Dec, bytes: &[u8], size: Option<(u16, u16)>) -> Result<Deco
         Dec::Dat => drain(DatReader::new(bytes, size)?),
         Dec::Text => drain(TextReader::new(bytes, None, size)?),
         Dec::Aedat4 => drain(Aedat4Reader::new(bytes)?),
+        Dec::Es => drain(EsReader::new(bytes)?),
     }
 }
 
@@ -828,6 +832,59 @@ fn dat_decodes_records() {
 }
 
 // ---------------------------------------------------------------------------------------------
+// Event Stream.
+
+#[test]
+fn es_decodes_spec_bytes() {
+    // DVS: reset bytes, overflows (127 us each), rows from the bottom.
+    let mut f = es_dvs_file(&[], 320, 240);
+    let start = f.len() as u64;
+    f.extend_from_slice(&[0xFE, 0xFE]);
+    f.extend_from_slice(&[(5 << 1) | 1, 7, 0, 0, 0]); // t = 5, x = 7, y_file = 0: ON, y = 239
+    f.extend_from_slice(&[0xFF, 0xFF, 3 << 1, 63, 1, 239, 0]); // t = 5 + 254 + 3, x = 319, y = 0
+    let d = decode(Dec::Es, &f).unwrap();
+    assert_eq!(
+        d.events,
+        events_of(&[ev(0, 7, 239, 5, true), ev(0, 319, 0, 262, false)])
+    );
+    let r = EsReader::new(&f[..]).unwrap();
+    assert_eq!(r.info().cameras[0].width, Some(320));
+    assert_eq!(r.info().format, Format::Es);
+    // A pixel outside; a cut event; other versions and stream types.
+    let mut bad = f.clone();
+    bad.extend_from_slice(&[0, 64, 1, 0, 0]);
+    assert_eq!(corrupt_offset(decode(Dec::Es, &bad)), start + 14);
+    assert!(error_text(decode(Dec::Es, &f[..f.len() - 1])).contains("Event Stream event"));
+    let mut v1 = f.clone();
+    v1[12] = 1;
+    assert!(error_text(decode(Dec::Es, &v1)).contains("version 1.0.0"));
+    let mut color = f.clone();
+    color[15] = 4;
+    assert!(error_text(decode(Dec::Es, &color)).contains("color"));
+    let mut empty = f.clone();
+    empty[16] = 0;
+    empty[17] = 0;
+    assert!(error_text(decode(Dec::Es, &empty)).contains("sensor size 0"));
+
+    // ATIS (type 2): bits 2-6 time, bit 1 polarity, bit 0 threshold crossing (skipped);
+    // overflow bytes add 63 us times their two low bits (0xFC resets).
+    let mut a = f[..HEADER].to_vec();
+    a[15] = 2;
+    a.extend_from_slice(&[0xFC, (4 << 2) | 2, 1, 0, 2, 0]); // t = 4, ON, x = 1, y = 237
+    a.extend_from_slice(&[0xFE, (1 << 2) | 1, 1, 0, 2, 0]); // t = 4 + 126 + 1: a crossing
+    a.extend_from_slice(&[0xFD, 0, 9, 0, 0, 0]); // t = 131 + 63: OFF at x = 9, y = 239
+    let d = decode(Dec::Es, &a).unwrap();
+    assert_eq!(
+        d.events,
+        events_of(&[ev(0, 1, 237, 4, true), ev(0, 9, 239, 194, false)])
+    );
+    assert_eq!(d.notes.skipped_records, 1);
+}
+
+/// Bytes of an Event Stream header.
+const HEADER: usize = 20;
+
+// ---------------------------------------------------------------------------------------------
 // Text.
 
 fn text(bytes: &[u8], unit: Option<TimeUnit>) -> Result<Decoded, ReadError> {
@@ -1136,6 +1193,7 @@ fn seeds() -> Vec<(&'static str, Dec, Format, Vec<u8>)> {
             Format::Aedat4,
             w.finish().unwrap(),
         ),
+        ("dvs.es", Dec::Es, Format::Es, es_dvs_file(&one, 346, 260)),
     ]
 }
 
@@ -1286,6 +1344,7 @@ fn repeatable() -> Vec<(Dec, Vec<u8>, Vec<u8>)> {
         (Dec::Dat, dat_head.clone(), dat[dat_head.len()..].to_vec()),
         (Dec::Text, Vec::new(), text_seconds(&e)),
         (Dec::Aedat4, aedat4.0, aedat4.1),
+        (Dec::Es, es_dvs_file(&[], 346, 260), es_dvs_body(&e, 260, 0)),
     ]
 }
 
@@ -1304,6 +1363,7 @@ fn stream_count(dec: Dec, header: &[u8], block: &[u8], blocks: usize) -> u64 {
         Dec::Dat => Box::new(DatReader::new(src, None).unwrap()),
         Dec::Text => Box::new(TextReader::new(src, Some(TimeUnit::S), None).unwrap()),
         Dec::Aedat4 => Box::new(Aedat4Reader::new(src).unwrap()),
+        Dec::Es => Box::new(EsReader::new(src).unwrap()),
         Dec::Aedat2Dhp19 => unreachable!(),
     };
     let mut b = Batch::default();
@@ -1411,7 +1471,7 @@ proptest! {
 
     /// Arbitrary bytes after a valid header, through every decoder.
     #[test]
-    fn random_bodies_never_panic(body in proptest::collection::vec(any::<u8>(), 0..1024), which in 0usize..8) {
+    fn random_bodies_never_panic(body in proptest::collection::vec(any::<u8>(), 0..1024), which in 0usize..DECODERS.len()) {
         let dec = DECODERS[which];
         let header: Vec<u8> = match dec {
             Dec::Aedat2 => aedat2_header(Some("DAVIS346B"), true),
@@ -1421,6 +1481,7 @@ proptest! {
             Dec::Dat => dat_file(&[], 64, 64),
             Dec::Text => b"t x y p\n".to_vec(),
             Dec::Aedat4 => aedat4_header(&[CameraInfo { id: 0, width: Some(64), height: Some(64), name: None }]),
+            Dec::Es => es_dvs_file(&[], 64, 64),
         };
         let bytes = [header, body].concat();
         let _ = decode_checked(dec, &bytes);
@@ -1428,7 +1489,7 @@ proptest! {
 
     /// Arbitrary bytes from the start.
     #[test]
-    fn random_files_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..512), which in 0usize..8) {
+    fn random_files_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..512), which in 0usize..DECODERS.len()) {
         let _ = decode_checked(DECODERS[which], &bytes);
         let _ = Format::detect(&bytes);
     }

@@ -11,6 +11,7 @@
 //! | [`aedat3`] | cAER / libcaer AEDAT 3.1 |
 //! | [`evt`] | Prophesee RAW, EVT 2.0 and EVT 3.0 |
 //! | [`dat`] | Prophesee `.dat` CD events |
+//! | [`es`] | Event Stream `.es` (Sepia, Tarsier, faery): DVS and ATIS |
 //! | [`text`] | text / CSV `t x y p` |
 //!
 //! Where a reader recovers instead of failing (records that are not polarity events, counter
@@ -29,6 +30,7 @@ pub mod aedat2;
 pub mod aedat3;
 pub mod aedat4;
 pub mod dat;
+pub mod es;
 pub mod evt;
 pub mod npy;
 mod source;
@@ -113,6 +115,9 @@ pub enum Format {
     Evt3,
     /// Prophesee `.dat` CD events.
     Dat,
+    /// Event Stream `.es` (version 2; DVS and ATIS streams).
+    #[value(alias = "event-stream")]
+    Es,
     /// Text / CSV, one event per line: `t x y p` (or the columns a header row names).
     #[value(alias = "csv", alias = "txt")]
     Text,
@@ -120,7 +125,7 @@ pub enum Format {
 
 impl Format {
     /// Every format, in declaration order.
-    pub const ALL: [Self; 13] = [
+    pub const ALL: [Self; 14] = [
         Self::Npy,
         Self::Aedat4,
         Self::Aedat2,
@@ -133,6 +138,7 @@ impl Format {
         Self::Evt2,
         Self::Evt3,
         Self::Dat,
+        Self::Es,
         Self::Text,
     ];
 
@@ -146,6 +152,7 @@ impl Format {
     /// | `#!AER-DAT` (2.0; 1.0 is refused by the reader) | `aedat2` |
     /// | `%` lines with `% evt …` or `% format EVT…` | `raw` |
     /// | other `%` lines | `dat` (or `text` when printable text follows them) |
+    /// | `Event Stream` | `es` |
     /// | printable text whose first data line has four numbers | `text` |
     pub fn detect(head: &[u8]) -> Option<Self> {
         if head.starts_with(b"\x93NUMPY") {
@@ -158,6 +165,8 @@ impl Format {
             Some(Self::Aedat2)
         } else if head.starts_with(b"%") {
             Some(evt::detect_percent_header(head))
+        } else if head.starts_with(es::MAGIC) {
+            Some(Self::Es)
         } else if text::looks_like_text(head) {
             Some(Self::Text)
         } else {
@@ -180,6 +189,7 @@ impl Format {
             Self::Evt2 => "evt2",
             Self::Evt3 => "evt3",
             Self::Dat => "dat",
+            Self::Es => "es",
             Self::Text => "text",
         }
     }
@@ -471,6 +481,7 @@ pub fn from_source<S: Read + Send + 'static>(
             Box::new(evt::EvtReader::new(file, format, size)?)
         }
         Format::Dat => Box::new(dat::DatReader::new(file, size)?),
+        Format::Es => Box::new(es::EsReader::new(file)?),
         Format::Text => Box::new(text::TextReader::new(file, opts.time_unit, size)?),
     };
     Ok(reader)
