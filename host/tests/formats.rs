@@ -679,6 +679,11 @@ fn evt3_decodes_spec_words() {
 /// without a time-high word.
 #[test]
 fn evt3_time_words_follow_openeb() {
+    let t = |high: i64, low: i64| (high << 12) | low;
+    let times = |f: &[u8]| -> (Vec<i64>, ReadNotes) {
+        let d = decode(Dec::Evt3, f).unwrap();
+        (d.events.iter().map(|(_, e)| e.t).collect(), d.notes)
+    };
     let mut f = raw_header(&["evt 3.0", "geometry 1280x720"]);
     evt3_word(&mut f, 0x8, 5);
     evt3_word(&mut f, 0x0, 1);
@@ -692,40 +697,119 @@ fn evt3_time_words_follow_openeb() {
     evt3_word(&mut f, 0x2, 4);
     evt3_word(&mut f, 0x6, 0xFF0);
     evt3_word(&mut f, 0x2, 5);
-    evt3_word(&mut f, 0x6, 0x010); // back by more than 0x800, no time high: the next period
+    evt3_word(&mut f, 0x6, 0x010); // back by more than 0x800 after several time highs: as given
     evt3_word(&mut f, 0x2, 6);
+    let (got, notes) = times(&f);
+    let want = [
+        t(5, 0x700),
+        t(5, 0x6F5),
+        t(5, 0x6F5),
+        t(6, 0),
+        t(6, 0xFF0),
+        t(6, 0x010),
+    ];
+    assert_eq!(got, want);
+    assert_eq!(notes.implied_time_highs, 0);
+
+    // One time-high word in the file (expelliarmus): a time low back by more than 0x800
+    // starts the next period, across the 12-bit time high's wrap too; a smaller step back is
+    // taken as given; a later time-high word for the implied period keeps the time.
+    let mut f = raw_header(&["evt 3.0", "geometry 1280x720"]);
+    evt3_word(&mut f, 0x8, 0xFFE);
+    evt3_word(&mut f, 0x0, 1);
+    evt3_word(&mut f, 0x6, 0xFF0);
+    evt3_word(&mut f, 0x2, 1);
+    evt3_word(&mut f, 0x6, 0x010);
+    evt3_word(&mut f, 0x2, 2);
     evt3_word(&mut f, 0x6, 0x7FF);
     evt3_word(&mut f, 0x6, 0x000); // back by 0x7FF only: as given
-    evt3_word(&mut f, 0x2, 7);
-    // An implied period across the 12-bit time high's wrap, then the time-high word the
-    // implied period already stands for.
-    evt3_word(&mut f, 0x8, 0xFFF);
+    evt3_word(&mut f, 0x2, 3);
     evt3_word(&mut f, 0x6, 0xF00);
-    evt3_word(&mut f, 0x2, 8);
-    evt3_word(&mut f, 0x6, 0x005);
-    evt3_word(&mut f, 0x2, 9);
+    evt3_word(&mut f, 0x2, 4);
+    evt3_word(&mut f, 0x6, 0x005); // the next period: time high 0x1000, wrapped
+    evt3_word(&mut f, 0x2, 5);
     evt3_word(&mut f, 0x8, 0x000);
-    evt3_word(&mut f, 0x2, 10);
-    let d = decode(Dec::Evt3, &f).unwrap();
-    let t = |high: i64, low: i64| (high << 12) | low;
-    let times: Vec<i64> = d.events.iter().map(|(_, e)| e.t).collect();
+    evt3_word(&mut f, 0x2, 6);
+    let (got, notes) = times(&f);
+    let want = [
+        t(0xFFE, 0xFF0),
+        t(0xFFF, 0x010),
+        t(0xFFF, 0),
+        t(0xFFF, 0xF00),
+        t(0x1000, 0x005),
+        t(0x1000, 0x005),
+    ];
+    assert_eq!(got, want);
+    assert_eq!(notes.implied_time_highs, 2);
+    assert_eq!(notes.timestamp_wraps, 1);
+}
+
+/// The size a header without `% format` or `% geometry` implies through `% system_ID`, as
+/// OpenEB's `check_header` decides whose table applies.
+#[test]
+fn raw_sizes_from_system_id_follow_openeb() {
+    let size = |lines: &[&str]| {
+        let mut f = raw_header(lines);
+        evt3_word(&mut f, 0x8, 0);
+        let r = EvtReader::new(&f[..], Format::Raw, None).unwrap();
+        let c = &r.info().cameras[0];
+        c.width.zip(c.height)
+    };
+    let hd = Some((1280, 720));
+    let vga = Some((640, 480));
+    assert_eq!(size(&["evt 3.0", "system_ID 48"]), hd); // no integrator: Prophesee
     assert_eq!(
-        times,
-        [
-            t(5, 0x700),
-            t(5, 0x6F5),
-            t(5, 0x6F5),
-            t(6, 0),
-            t(6, 0xFF0),
-            t(7, 0x010),
-            t(7, 0),
-            t(0xFFF, 0xF00),
-            t(0x1000, 0x005),
-            t(0x1000, 0x005),
-        ]
+        size(&["evt 2.0", "integrator_name Prophesee", "system_ID 21"]),
+        vga
     );
-    assert_eq!(d.notes.implied_time_highs, 2);
-    assert_eq!(d.notes.timestamp_wraps, 1);
+    assert_eq!(
+        size(&["evt 3.0", "integrator_name Foo", "system_ID 48"]),
+        None
+    );
+    // The legacy name counts only when neither newer one is given.
+    let both = [
+        "camera_integrator_name Prophesee",
+        "plugin_integrator_name Prophesee",
+    ];
+    assert_eq!(
+        size(&[
+            "evt 3.0",
+            "integrator_name Foo",
+            both[0],
+            both[1],
+            "system_ID 49"
+        ]),
+        hd
+    );
+    assert_eq!(size(&["evt 3.0", both[0], "system_ID 48"]), None);
+    assert_eq!(size(&["evt 3.0", "system_ID 20"]), None); // not in the table
+                                                          // A stated size wins; so do --width/--height.
+    assert_eq!(
+        size(&["evt 3.0", "geometry 320x320", "system_ID 48"]),
+        Some((320, 320))
+    );
+    let mut f = raw_header(&["evt 3.0", "system_ID 48"]);
+    evt3_word(&mut f, 0x8, 0);
+    let r = EvtReader::new(&f[..], Format::Raw, Some((346, 260))).unwrap();
+    assert_eq!(r.info().cameras[0].width, Some(346));
+}
+
+/// After a second time-high word, time lows are taken as given (OpenEB), not as implied
+/// periods: a file with time-high words is not an expelliarmus file.
+#[test]
+fn evt3_implies_periods_only_before_a_second_time_high() {
+    let mut f = raw_header(&["evt 3.0", "geometry 1280x720"]);
+    evt3_word(&mut f, 0x8, 5);
+    evt3_word(&mut f, 0x8, 5);
+    evt3_word(&mut f, 0x0, 1);
+    evt3_word(&mut f, 0x6, 3000);
+    evt3_word(&mut f, 0x2, 1);
+    evt3_word(&mut f, 0x6, 100);
+    evt3_word(&mut f, 0x2, 2);
+    let d = decode(Dec::Evt3, &f).unwrap();
+    let times: Vec<i64> = d.events.iter().map(|(_, e)| e.t).collect();
+    assert_eq!(times, [(5 << 12) + 3000, (5 << 12) + 100]);
+    assert_eq!(d.notes.implied_time_highs, 0);
 }
 
 #[test]
@@ -813,17 +897,18 @@ fn dat_decodes_records() {
     assert!(error_text(decode(Dec::Dat, &size16)).contains("event size 16"));
     let v0 = b"% Version 0\n\x00\x08".to_vec();
     assert!(error_text(decode(Dec::Dat, &v0)).contains("version"));
-    // Version 1: 9-bit x, 8-bit y, polarity at bit 17 (bits 21-31 unused).
+    // Version 1: 9-bit x, 8-bit y, polarity in bit 17 (bits 18-31 ignored, as Prophesee's
+    // readATIS_td does).
     let mut v1 = b"% Version 1\n% Width 304\n% Height 240\n\x0c\x08".to_vec();
-    dat_record(&mut v1, 5, 303 | (239 << 9) | (1 << 17) | (0x7FF << 21));
-    dat_record(&mut v1, 6, 2 | (3 << 9));
+    dat_record(&mut v1, 5, 303 | (239 << 9) | (1 << 17) | (0x3FFF << 18));
+    dat_record(&mut v1, 6, 2 | (3 << 9) | (1 << 18));
     let d = decode(Dec::Dat, &v1).unwrap();
     assert_eq!(
         d.events,
         events_of(&[ev(0, 303, 239, 5, true), ev(0, 2, 3, 6, false)])
     );
-    dat_record(&mut v1, 7, 2 << 17);
-    assert!(error_text(decode(Dec::Dat, &v1)).contains("polarity 2"));
+    dat_record(&mut v1, 7, 304);
+    assert!(error_text(decode(Dec::Dat, &v1)).contains("outside"));
     // No header: records from the first byte.
     let body = &f[start as usize..];
     let d = decode(Dec::Dat, body).unwrap();
@@ -866,7 +951,7 @@ fn es_decodes_spec_bytes() {
     empty[17] = 0;
     assert!(error_text(decode(Dec::Es, &empty)).contains("sensor size 0"));
 
-    // ATIS (type 2): bits 2-6 time, bit 1 polarity, bit 0 threshold crossing (skipped);
+    // ATIS (type 2): bits 2-7 time, bit 1 polarity, bit 0 threshold crossing (skipped);
     // overflow bytes add 63 us times their two low bits (0xFC resets).
     let mut a = f[..HEADER].to_vec();
     a[15] = 2;
@@ -1090,6 +1175,30 @@ fn npy_times_are_whole_microseconds_or_a_stated_unit() {
     assert_eq!(
         evpose_host::io::read_all(&mut *r).unwrap(),
         layout_expected()
+    );
+}
+
+/// faery's CSV header names the sensor size in the coordinates' columns.
+#[test]
+fn text_header_sizes() {
+    let read = |bytes: &[u8]| drain(TextReader::new(bytes, None, None)?);
+    let r = TextReader::new(&b"t,x@346,y@260,on\n5,345,259,1\n"[..], None, None).unwrap();
+    assert_eq!(r.info().cameras[0].width, Some(346));
+    assert_eq!(r.info().cameras[0].height, Some(260));
+    let d = read(b"t,x@346,y@260,on\n5,345,259,1\n").unwrap();
+    assert_eq!(d.events, events_of(&[ev(0, 345, 259, 5, true)]));
+    assert!(error_text(read(b"t,x@346,y@260,on\n5,346,0,1\n")).contains("outside"));
+    // A bad size is an error naming the column; one size alone is noted and not used.
+    assert!(error_text(read(b"t,x@0,y@260,on\n5,1,2,1\n")).contains("`x@0`"));
+    let d = read(b"t,x@346,y,on\n2,400,4,0\n").unwrap();
+    assert_eq!(d.events, events_of(&[ev(0, 400, 4, 2, false)]));
+    assert!(
+        d.notes
+            .assumptions
+            .iter()
+            .any(|n| n.contains("only the sensor's width")),
+        "{:?}",
+        d.notes.assumptions
     );
 }
 

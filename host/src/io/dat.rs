@@ -10,8 +10,9 @@
 //! ```
 //!
 //! `% Version 1` files (older ATIS sensors, up to 512 × 256) pack the second word as x = bits
-//! 0–8, y = bits 9–16, polarity = bits 17–20 (bits 21–31 unused), as faery writes and reads
-//! them; version 2 and later, and files without a version line, use the layout above.
+//! 0–8, y = bits 9–16, polarity = bit 17 (bits 18–31 ignored, as Prophesee's `readATIS_td`
+//! masks them; faery writes bits 17–20); version 2 and later, and files without a version
+//! line, use the layout above.
 //!
 //! As Prophesee's `psee_loader` does, the header ends at the first line that does not start
 //! with `%`, and a file without any header line has no type/size bytes either. The sensor size
@@ -43,15 +44,17 @@ struct Layout {
     y_shift: u32,
     y_mask: u32,
     p_shift: u32,
+    p_mask: u32,
 }
 
 impl Layout {
-    /// `% Version 1`: 9-bit x, 8-bit y, polarity from bit 17.
+    /// `% Version 1`: 9-bit x, 8-bit y, polarity in bit 17.
     const V1: Self = Self {
         x_mask: 0x1FF,
         y_shift: 9,
         y_mask: 0xFF,
         p_shift: 17,
+        p_mask: 1,
     };
     /// Version 2 and later: 14-bit x and y, polarity in the top four bits.
     const V2: Self = Self {
@@ -59,6 +62,7 @@ impl Layout {
         y_shift: 14,
         y_mask: 0x3FFF,
         p_shift: 28,
+        p_mask: 0xF,
     };
 }
 
@@ -180,7 +184,7 @@ impl<R: Read> DatReader<R> {
                 let l = self.layout;
                 let x = w & l.x_mask;
                 let y = (w >> l.y_shift) & l.y_mask;
-                let p = (w >> l.p_shift) & 0xF;
+                let p = (w >> l.p_shift) & l.p_mask;
                 if p > 1 {
                     return Err(ReadError::Corrupt {
                         offset,

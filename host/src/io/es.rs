@@ -13,7 +13,7 @@
 //!
 //! DVS byte 0: bits 1–7 the microseconds since the previous event, bit 0 `is_increase` (ON);
 //! `0xFF` alone is an overflow (127 µs more before the next event), `0xFE` alone a reset byte
-//! (skipped). ATIS byte 0: bits 2–6 the microseconds since the previous event, bit 1 the
+//! (skipped). ATIS byte 0: bits 2–7 the microseconds since the previous event, bit 1 the
 //! polarity, bit 0 `is_tc`; a byte with bits 2–7 set is an overflow of 63 µs times its two low
 //! bits (`0xFC`, zero, is the reset byte). ATIS threshold crossings (`is_tc`, half of an
 //! exposure measurement) carry no polarity change: they are skipped and counted in
@@ -67,13 +67,15 @@ impl<R: Read> EsReader<R> {
     /// Parses the header (the file states its sensor size).
     pub fn new(inner: R) -> Result<Self, ReadError> {
         let mut src = Source::new(inner, 0);
-        if src.fill(HEADER_BYTES)? < HEADER_BYTES {
+        // The magic, version and type first: a generic stream has no size to read.
+        let have = src.fill(HEADER_BYTES)?;
+        if have < 16 {
             return Err(ReadError::Truncated {
                 offset: 0,
                 what: "the Event Stream header",
             });
         }
-        let h = &src.data()[..HEADER_BYTES];
+        let h = &src.data()[..have.min(HEADER_BYTES)];
         if &h[..12] != MAGIC {
             return Err(ReadError::Corrupt {
                 offset: 0,
@@ -102,6 +104,12 @@ impl<R: Read> EsReader<R> {
                 )));
             }
         };
+        if h.len() < HEADER_BYTES {
+            return Err(ReadError::Truncated {
+                offset: 16,
+                what: "the Event Stream sensor size",
+            });
+        }
         let size = (
             u16::from_le_bytes([h[16], h[17]]),
             u16::from_le_bytes([h[18], h[19]]),

@@ -42,11 +42,12 @@
 //!
 //! The time counters wrap (EVT 2.0 after 2³⁴ µs, EVT 3.0 after 2²⁴ µs ≈ 16.8 s): a time-high
 //! word more than half the range below the previous one is a wrap, counted in
-//! [`ReadNotes::timestamp_wraps`]. In EVT 3.0 a time-low word more than half its range (2,048
-//! µs) below the previous one, with no time-high word between them, starts the next time-high
-//! period: a conforming stream gives the time-high word first, but expelliarmus (a Python
-//! reader and writer) writes one time-high word per file and lets the time low wrap; these
-//! are counted in [`ReadNotes::implied_time_highs`]. Events before the first time-high word (or, in EVT 3.0,
+//! [`ReadNotes::timestamp_wraps`]. In an EVT 3.0 file that has given one time-high word so
+//! far, a time-low word more than half its range (2,048 µs) below the previous one, with no
+//! time-high word between them, starts the next time-high period: a conforming stream gives a
+//! time-high word every period, but expelliarmus (a Python reader and writer) writes one per
+//! file and lets the time low wrap; these are counted in [`ReadNotes::implied_time_highs`].
+//! Once a second time-high word came, time lows are taken as given (as OpenEB does). Events before the first time-high word (or, in EVT 3.0,
 //! before the first y address) have no time base and are dropped and counted in
 //! [`ReadNotes::dropped_events`], as OpenEB does. Reserved word types, pixels outside a known
 //! sensor (or x beyond 65535) and a file that ends inside a word are errors naming the word's
@@ -127,14 +128,20 @@ impl PercentHeader {
     /// states none (files of Metavision before 2.2 or so), with the sensor's name; only for
     /// files whose integrator is Prophesee, as OpenEB decides (`psee_raw_file_header.cpp`).
     pub(crate) fn system_id_size(&self) -> Option<((u16, u16), &'static str)> {
-        let integrators = [
-            "integrator_name",
-            "camera_integrator_name",
-            "plugin_integrator_name",
-        ];
-        let mut named = integrators.iter().filter_map(|k| self.get(k)).peekable();
-        named.peek()?;
-        if !named.all(|v| v == "Prophesee") {
+        // OpenEB's `check_header`: the legacy `integrator_name` stands for both the camera's
+        // and the plugin's integrator when neither is named; no integrator line at all means
+        // Prophesee; the table applies only when both are Prophesee.
+        let (camera, plugin) = match (
+            self.get("camera_integrator_name"),
+            self.get("plugin_integrator_name"),
+        ) {
+            (None, None) => {
+                let legacy = self.get("integrator_name").unwrap_or("Prophesee");
+                (Some(legacy), Some(legacy))
+            }
+            named => named,
+        };
+        if camera != Some("Prophesee") || plugin != Some("Prophesee") {
             return None;
         }
         let vga = (640, 480);
@@ -244,6 +251,8 @@ struct State {
     low: i64,
     /// EVT 3.0: a time-low word came since the last time-high word.
     low_seen: bool,
+    /// EVT 3.0: time-high words so far.
+    high_words: u64,
     y: Option<u16>,
     base_x: u32,
     on: bool,
@@ -344,6 +353,7 @@ impl<R: Read> EvtReader<R> {
                 high_counter: Unwrapper::new(bits),
                 low: 0,
                 low_seen: false,
+                high_words: 0,
                 y: None,
                 base_x: 0,
                 on: false,
@@ -493,9 +503,11 @@ impl Decoder<'_> {
                 0x6 => {
                     let low = i64::from(w & 0xFFF);
                     // Time low back by more than half its range with no time-high word since
-                    // the last time low: its counter wrapped into the next time-high period
-                    // (expelliarmus writes one time-high word per file).
-                    if let (true, Some(high)) = (s.low_seen && low + 0x800 < s.low, s.high) {
+                    // the last time low, in a file that gave one time-high word so far: its
+                    // counter wrapped into the next period (expelliarmus writes one time-high
+                    // word per file; files with more follow OpenEB: the time low as given).
+                    let wrapped = s.low_seen && s.high_words == 1 && low + 0x800 < s.low;
+                    if let (true, Some(high)) = (wrapped, s.high) {
                         let offset = self.base + (i * 2) as u64;
                         s.high = Some(
                             s.high_counter
@@ -521,6 +533,7 @@ impl Decoder<'_> {
                         s.low = 0;
                     }
                     s.high = Some(high);
+                    s.high_words += 1;
                     s.low_seen = false;
                     self.notes.timestamp_wraps = s.high_counter.wraps();
                 }

@@ -144,6 +144,7 @@ impl<R: Read> TextReader<R> {
                     cols = h.cols;
                     header_unit = h.unit;
                     header_size = h.size.or(header_size);
+                    notes.assumptions.extend(h.one_size);
                     notes.assumptions.push(format!(
                         "columns from the commented header row: {}",
                         String::from_utf8_lossy(body)
@@ -173,6 +174,7 @@ impl<R: Read> TextReader<R> {
             cols = h.cols;
             header_unit = h.unit;
             header_size = h.size.or(header_size);
+            notes.assumptions.extend(h.one_size);
             notes.assumptions.push(format!(
                 "columns from the header row: {}",
                 String::from_utf8_lossy(body)
@@ -583,6 +585,8 @@ struct Header {
     unit: Option<TimeUnit>,
     /// From `x@W` and `y@H` column names (faery's CSV).
     size: Option<(u16, u16)>,
+    /// A note when only one of `x@W`, `y@H` is given.
+    one_size: Option<String>,
 }
 
 /// The columns, time unit and sensor size a header row names.
@@ -599,13 +603,19 @@ fn header_columns(names: &[&[u8]]) -> Result<Header, String> {
             .trim_matches('"')
             .to_ascii_lowercase();
         // faery writes the sensor size into the coordinates' names: `x@346`, `y@260`.
-        if let Some((axis, n)) = name.split_once('@') {
-            let n = n.parse::<u16>().ok().filter(|&n| n > 0);
-            match (axis, n) {
-                ("x", Some(n)) => width = Some(n),
-                ("y", Some(n)) => height = Some(n),
-                _ => continue,
-            }
+        if let Some((axis @ ("x" | "y"), n)) = name.split_once('@').map(|(a, n)| (a.trim(), n)) {
+            let n = n
+                .trim()
+                .parse::<u16>()
+                .ok()
+                .filter(|&n| n > 0)
+                .ok_or_else(|| {
+                    format!(
+                        "header row names the column `{}`: a sensor size is 1 to 65535",
+                        String::from_utf8_lossy(raw)
+                    )
+                })?;
+            *(if axis == "x" { &mut width } else { &mut height }) = Some(n);
             name = axis.to_string();
         }
         let split = name.find(['_', '[', '(', ' ']).unwrap_or(name.len());
@@ -644,6 +654,12 @@ fn header_columns(names: &[&[u8]]) -> Result<Header, String> {
             },
             unit,
             size: width.zip(height),
+            one_size: (width.is_some() != height.is_some()).then(|| {
+                format!(
+                    "the header row gives only the sensor's {}: no size taken from it",
+                    if width.is_some() { "width" } else { "height" }
+                )
+            }),
         }),
         _ => Err(format!(
             "neither four numbers nor a header row naming t, x, y and p columns: {}",
