@@ -419,14 +419,11 @@ struct Decoder<'a> {
 }
 
 impl Decoder<'_> {
+    #[inline]
     fn check(&self, offset: u64, x: u32, y: u32) -> Result<(), ReadError> {
         match self.size {
             Some((w, h)) if x >= u32::from(w) || y >= u32::from(h) => {
-                let mut e = out_of_sensor(offset, x, y, (w, h));
-                if let (true, ReadError::Corrupt { message, .. }) = (self.size_from_id, &mut e) {
-                    message.push_str(" (the size `system_ID` implies; pass --width/--height)");
-                }
-                Err(e)
+                Err(self.outside(offset, x, y, (w, h)))
             }
             None if x > u32::from(u16::MAX) => Err(ReadError::Corrupt {
                 offset,
@@ -434,6 +431,17 @@ impl Decoder<'_> {
             }),
             _ => Ok(()),
         }
+    }
+
+    /// The error for a pixel outside the sensor (out of line: the decoding loops stay small).
+    #[cold]
+    #[inline(never)]
+    fn outside(&self, offset: u64, x: u32, y: u32, size: (u16, u16)) -> ReadError {
+        let mut e = out_of_sensor(offset, x, y, size);
+        if let (true, ReadError::Corrupt { message, .. }) = (self.size_from_id, &mut e) {
+            message.push_str(" (the size `system_ID` implies; pass --width/--height)");
+        }
+        e
     }
 
     /// Decodes EVT 2.0 words until the batch is full; returns the words used.
