@@ -9,6 +9,7 @@
 //! | stage | module | holds |
 //! |---|---|---|
 //! | events | [`event`] | the [`Event`] type |
+//! | sensor words | [`evt`] | Prophesee EVT 2.0 / 3.0 streams decoded into events, state kept across buffers |
 //! | rasterization | [`raster`] | streaming window → event point cloud `[x, y, t_avg, p_acc, cnt]` |
 //! | sampling | [`sample`] | `M` points → `N` network inputs, seeded and reproducible |
 //! | model | [`model`] | the `.evq` model blob, validated and read in place |
@@ -45,6 +46,7 @@
 
 pub mod confidence;
 pub mod event;
+pub mod evt;
 #[cfg(feature = "geometry")]
 pub mod geometry;
 pub mod infer;

@@ -454,7 +454,7 @@ impl Decoder<'_> {
         self.batch.cameras.resize(start + records.len(), 0);
         let events = &mut self.batch.events[start..];
         let cameras = &mut self.batch.cameras[start..];
-        let mut forward = self.time.forward();
+        let mut forward = super::source::forward(self.time);
         let (mut k, mut skipped) = (0, 0);
         let mut result = Ok(());
         for (i, r) in records.iter().enumerate() {
@@ -490,7 +490,7 @@ impl Decoder<'_> {
             }
             k += 1;
         }
-        self.time.resume(&forward);
+        super::source::resume(self.time, &forward);
         self.notes.skipped_records += skipped;
         self.batch.events.truncate(start + k);
         self.batch.cameras.truncate(start + k);

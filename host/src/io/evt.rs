@@ -55,9 +55,10 @@
 
 use std::io::Read;
 
-use evpose_core::Event;
+pub use evpose_core::evt::Encoding;
+use evpose_core::evt::{EvtDecoder, EvtError};
 
-use super::source::{out_of_sensor, parse_geometry, time_overflow, Source, Unwrapper};
+use super::source::{out_of_sensor, parse_geometry, time_overflow, Source};
 use super::{text, Batch, CameraInfo, Format, ReadError, ReadNotes, StreamInfo, BATCH_EVENTS};
 
 /// The `%` header lines of a Prophesee file, as (lower-case key, value) pairs.
@@ -217,56 +218,22 @@ pub(crate) fn detect_percent_header(head: &[u8]) -> Format {
     }
 }
 
-/// An EVT encoding.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Encoding {
-    /// EVT 2.0: 32-bit words.
-    Evt2,
-    /// EVT 3.0: 16-bit words.
-    Evt3,
-}
-
-impl Encoding {
-    fn format(self) -> Format {
-        match self {
-            Self::Evt2 => Format::Evt2,
-            Self::Evt3 => Format::Evt3,
-        }
+/// The format an encoding reads as.
+fn format_of(encoding: Encoding) -> Format {
+    match encoding {
+        Encoding::Evt2 => Format::Evt2,
+        Encoding::Evt3 => Format::Evt3,
     }
-
-    fn word_bytes(self) -> usize {
-        match self {
-            Self::Evt2 => 4,
-            Self::Evt3 => 2,
-        }
-    }
-}
-
-/// Decoder state carried across words.
-struct State {
-    /// Unwrapped time-high value, once one was seen.
-    high: Option<i64>,
-    high_counter: Unwrapper,
-    /// EVT 3.0: time low, row, vector base and polarity.
-    low: i64,
-    /// EVT 3.0: a time-low word came since the last time-high word.
-    low_seen: bool,
-    /// EVT 3.0: time-high words so far.
-    high_words: u64,
-    y: Option<u16>,
-    base_x: u32,
-    on: bool,
 }
 
 /// Streaming Prophesee RAW reader (EVT 2.0 / 3.0).
 pub struct EvtReader<R> {
     src: Source<R>,
     info: StreamInfo,
-    encoding: Encoding,
-    size: Option<(u16, u16)>,
+    /// The words' decoder (the core's: the same one a microcontroller runs).
+    decoder: EvtDecoder,
     /// The size came from `% system_ID` (a guess that `--width/--height` can correct).
     size_from_id: bool,
-    state: State,
     notes: ReadNotes,
     finished: bool,
 }
@@ -329,14 +296,10 @@ impl<R: Read> EvtReader<R> {
                 size
             }
         };
-        let bits = match encoding {
-            Encoding::Evt2 => 28,
-            Encoding::Evt3 => 12,
-        };
         Ok(Self {
             src,
             info: StreamInfo {
-                format: encoding.format(),
+                format: format_of(encoding),
                 cameras: vec![CameraInfo {
                     id: 0,
                     width: size.map(|s| s.0),
@@ -345,19 +308,8 @@ impl<R: Read> EvtReader<R> {
                 }],
                 event_count: None,
             },
-            encoding,
-            size,
+            decoder: EvtDecoder::new(encoding, size),
             size_from_id: header.size().is_none() && from_id.is_some(),
-            state: State {
-                high: None,
-                high_counter: Unwrapper::new(bits),
-                low: 0,
-                low_seen: false,
-                high_words: 0,
-                y: None,
-                base_x: 0,
-                on: false,
-            },
             notes,
             finished: false,
         })
@@ -365,14 +317,14 @@ impl<R: Read> EvtReader<R> {
 
     /// The encoding in use.
     pub fn encoding(&self) -> Encoding {
-        self.encoding
+        self.decoder.encoding()
     }
 
     fn fill(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
-        let word = self.encoding.word_bytes();
-        // An EVT 3.0 word gives up to 12 events: stop while a whole vector still fits.
-        let limit = BATCH_EVENTS - 12;
-        while batch.len() < limit {
+        let encoding = self.decoder.encoding();
+        let word = encoding.word_bytes();
+        // Stop while a whole word's events (an EVT 3.0 vector: 12) still fit the batch.
+        while batch.len() + encoding.max_events_per_word() <= BATCH_EVENTS {
             let have = self.src.fill(word)?;
             if have < word {
                 if have == 0 {
@@ -386,205 +338,48 @@ impl<R: Read> EvtReader<R> {
             }
             let base = self.src.offset();
             let words = &self.src.data()[..have - have % word];
-            let mut d = Decoder {
-                state: &mut self.state,
-                notes: &mut self.notes,
-                size: self.size,
-                size_from_id: self.size_from_id,
-                batch,
-                base,
-                limit,
-            };
-            let used = match self.encoding {
-                Encoding::Evt2 => d.evt2(words)?,
-                Encoding::Evt3 => d.evt3(words)?,
-            };
-            self.src.consume(used * word);
+            let room = BATCH_EVENTS - batch.len();
+            let p = self
+                .decoder
+                .decode_with(words, room, |e| batch.push(0, e))
+                .map_err(|e| self.error(base, e))?;
+            self.src.consume(p.bytes);
         }
         Ok(())
     }
-}
 
-/// Decodes whole words into a batch.
-struct Decoder<'a> {
-    state: &'a mut State,
-    notes: &'a mut ReadNotes,
-    size: Option<(u16, u16)>,
-    size_from_id: bool,
-    batch: &'a mut Batch,
-    /// File offset of the first word.
-    base: u64,
-    /// Decoding stops once the batch holds this many events.
-    limit: usize,
-}
-
-impl Decoder<'_> {
-    #[inline]
-    fn check(&self, offset: u64, x: u32, y: u32) -> Result<(), ReadError> {
-        match self.size {
-            Some((w, h)) if x >= u32::from(w) || y >= u32::from(h) => {
-                Err(self.outside(offset, x, y, (w, h)))
-            }
-            None if x > u32::from(u16::MAX) => Err(ReadError::Corrupt {
-                offset,
-                message: format!("x = {x} does not fit 16 bits"),
-            }),
-            _ => Ok(()),
-        }
-    }
-
-    /// The error for a pixel outside the sensor (out of line: the decoding loops stay small).
+    /// The reader's error for the decoder's, at file offset `base` + the word's index.
     #[cold]
     #[inline(never)]
-    fn outside(&self, offset: u64, x: u32, y: u32, size: (u16, u16)) -> ReadError {
-        let mut e = out_of_sensor(offset, x, y, size);
-        if let (true, ReadError::Corrupt { message, .. }) = (self.size_from_id, &mut e) {
-            message.push_str(" (the size `system_ID` implies; pass --width/--height)");
-        }
-        e
-    }
-
-    /// Decodes EVT 2.0 words until the batch is full; returns the words used.
-    fn evt2(&mut self, words: &[u8]) -> Result<usize, ReadError> {
-        for (i, b) in words.chunks_exact(4).enumerate() {
-            if self.batch.len() >= self.limit {
-                return Ok(i);
-            }
-            let w = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-            match w >> 28 {
-                ty @ (0x0 | 0x1) => {
-                    let Some(high) = self.state.high else {
-                        self.notes.dropped_events += 1;
-                        continue;
-                    };
-                    let x = (w >> 11) & 0x7FF;
-                    let y = w & 0x7FF;
-                    self.check(self.base + (i * 4) as u64, x, y)?;
-                    let t = (high << 6) | i64::from((w >> 22) & 0x3F);
-                    self.batch
-                        .push(0, Event::new(x as u16, y as u16, t, ty == 1));
-                }
-                0x8 => {
-                    let offset = self.base + (i * 4) as u64;
-                    let high = self
-                        .state
-                        .high_counter
-                        .unwrap(u64::from(w & 0x0FFF_FFFF))
-                        .filter(|&h| h < 1 << 57)
-                        .ok_or_else(|| time_overflow(offset))?;
-                    self.state.high = Some(high);
-                    self.notes.timestamp_wraps = self.state.high_counter.wraps();
-                }
-                0xA | 0xE | 0xF => self.notes.skipped_records += 1,
-                ty => {
-                    return Err(ReadError::Corrupt {
-                        offset: self.base + (i * 4) as u64,
-                        message: format!("EVT 2.0 word {w:#010x} has the reserved type {ty:#x}"),
-                    })
-                }
-            }
-        }
-        Ok(words.len() / 4)
-    }
-
-    /// Decodes EVT 3.0 words until the batch is full; returns the words used.
-    fn evt3(&mut self, words: &[u8]) -> Result<usize, ReadError> {
-        for (i, b) in words.chunks_exact(2).enumerate() {
-            if self.batch.len() >= self.limit {
-                return Ok(i);
-            }
-            let w = u16::from_le_bytes([b[0], b[1]]);
-            let s = &mut *self.state;
-            match w >> 12 {
-                0x0 => s.y = Some(w & 0x7FF),
-                0x2 => {
-                    let x = u32::from(w & 0x7FF);
-                    let on = w & 0x800 != 0;
-                    self.emit(i, x, on, 1)?;
-                }
-                0x3 => {
-                    s.base_x = u32::from(w & 0x7FF);
-                    s.on = w & 0x800 != 0;
-                }
-                0x4 => self.vector(i, u32::from(w & 0xFFF), 12)?,
-                0x5 => self.vector(i, u32::from(w & 0xFF), 8)?,
-                0x6 => {
-                    let low = i64::from(w & 0xFFF);
-                    // Time low back by more than half its range with no time-high word since
-                    // the last time low, in a file that gave one time-high word so far: its
-                    // counter wrapped into the next period (expelliarmus writes one time-high
-                    // word per file; files with more follow OpenEB: the time low as given).
-                    let wrapped = s.low_seen && s.high_words == 1 && low + 0x800 < s.low;
-                    if let (true, Some(high)) = (wrapped, s.high) {
-                        let offset = self.base + (i * 2) as u64;
-                        s.high = Some(
-                            s.high_counter
-                                .unwrap(((high + 1) & 0xFFF) as u64)
-                                .filter(|&h| h < 1 << 50)
-                                .ok_or_else(|| time_overflow(offset))?,
-                        );
-                        self.notes.timestamp_wraps = s.high_counter.wraps();
-                        self.notes.implied_time_highs += 1;
-                    }
-                    s.low = low;
-                    s.low_seen = true;
-                }
-                0x8 => {
-                    let offset = self.base + (i * 2) as u64;
-                    let high = s
-                        .high_counter
-                        .unwrap(u64::from(w & 0xFFF))
-                        .filter(|&h| h < 1 << 50)
-                        .ok_or_else(|| time_overflow(offset))?;
-                    // A new time-high period starts at time low 0 (as OpenEB decodes it).
-                    if s.high != Some(high) {
-                        s.low = 0;
-                    }
-                    s.high = Some(high);
-                    s.high_words += 1;
-                    s.low_seen = false;
-                    self.notes.timestamp_wraps = s.high_counter.wraps();
-                }
-                0x7 | 0xA | 0xE | 0xF => self.notes.skipped_records += 1,
-                ty => {
-                    return Err(ReadError::Corrupt {
-                        offset: self.base + (i * 2) as u64,
-                        message: format!("EVT 3.0 word {w:#06x} has the reserved type {ty:#x}"),
-                    })
-                }
-            }
-        }
-        Ok(words.len() / 2)
-    }
-
-    /// Events of a VECT_12 / VECT_8 word; moves the base x on by `width`.
-    fn vector(&mut self, i: usize, mut mask: u32, width: u32) -> Result<(), ReadError> {
-        let base_x = self.state.base_x;
-        let on = self.state.on;
-        self.state.base_x = base_x.saturating_add(width);
-        if self.state.high.is_none() || self.state.y.is_none() {
-            self.notes.dropped_events += u64::from(mask.count_ones());
-            return Ok(());
-        }
-        while mask != 0 {
-            let bit = mask.trailing_zeros();
-            mask &= mask - 1;
-            self.emit(i, base_x + bit, on, 0)?;
-        }
-        Ok(())
-    }
-
-    /// One EVT 3.0 event at `x` in the current row; `count_drop` is what to count as dropped
-    /// when the time base or row is not known yet (vectors count their own).
-    fn emit(&mut self, i: usize, x: u32, on: bool, count_drop: u64) -> Result<(), ReadError> {
-        let (Some(high), Some(y)) = (self.state.high, self.state.y) else {
-            self.notes.dropped_events += count_drop;
-            return Ok(());
+    fn error(&self, base: u64, e: EvtError) -> ReadError {
+        let corrupt = |at: usize, message: String| ReadError::Corrupt {
+            offset: base + at as u64,
+            message,
         };
-        self.check(self.base + (i * 2) as u64, x, u32::from(y))?;
-        let t = (high << 12) | self.state.low;
-        self.batch.push(0, Event::new(x as u16, y, t, on));
-        Ok(())
+        match e {
+            EvtError::ReservedType { at, word } => corrupt(
+                at,
+                match self.decoder.encoding() {
+                    Encoding::Evt2 => format!(
+                        "EVT 2.0 word {word:#010x} has the reserved type {:#x}",
+                        word >> 28
+                    ),
+                    Encoding::Evt3 => format!(
+                        "EVT 3.0 word {word:#06x} has the reserved type {:#x}",
+                        word >> 12
+                    ),
+                },
+            ),
+            EvtError::OutsideSensor { at, x, y, size } => {
+                let mut e = out_of_sensor(base + at as u64, x, y, size);
+                if let (true, ReadError::Corrupt { message, .. }) = (self.size_from_id, &mut e) {
+                    message.push_str(" (the size `system_ID` implies; pass --width/--height)");
+                }
+                e
+            }
+            EvtError::WideX { at, x } => corrupt(at, format!("x = {x} does not fit 16 bits")),
+            EvtError::TimeOverflow { at } => time_overflow(base + at as u64),
+        }
     }
 }
 
@@ -593,7 +388,14 @@ impl<R: Read> super::source::Fill for EvtReader<R> {
         &self.info
     }
     fn notes(&self) -> ReadNotes {
-        self.notes.clone()
+        let c = self.decoder.counts();
+        ReadNotes {
+            skipped_records: c.skipped_words,
+            dropped_events: c.dropped_events,
+            timestamp_wraps: c.timestamp_wraps,
+            implied_time_highs: c.implied_time_highs,
+            ..self.notes.clone()
+        }
     }
     fn fill_batch(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
         self.fill(batch)

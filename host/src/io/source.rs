@@ -151,77 +151,35 @@ impl<R: Read> Source<R> {
     }
 }
 
-/// Unwraps a free-running counter of `bits` bits into a monotonic count.
-///
-/// A step back by more than half the period is a wrap. A step forward by more than half the
-/// period right after a wrap is a late value from before the wrap (events of several cameras
-/// or pixels are not always in strict order), and is placed in the previous period.
-#[derive(Clone, Debug)]
-pub(crate) struct Unwrapper {
-    bits: u32,
-    last: Option<u64>,
-    epoch: u64,
+/// The counter unwrapper every reader's time goes through (defined in the core, whose EVT
+/// decoder uses it too).
+pub(crate) use evpose_core::evt::Unwrapper;
+
+/// The state for a decoding loop's fast path ([`Forward`]) of `time`, handed back with
+/// [`resume`] when the loop ends.
+pub(crate) fn forward(time: &Unwrapper) -> Forward {
+    let bits = time.bits();
+    let half = 1u64 << (bits - 1);
+    // `base + raw` must fit an i64 for every raw value of the period.
+    let base = time.wraps().checked_mul(1u64 << bits).filter(|b| {
+        b.checked_add(1u64 << bits)
+            .is_some_and(|e| e <= i64::MAX as u64)
+    });
+    match (time.last(), base) {
+        (Some(last), Some(base)) => Forward { last, base, half },
+        // Nothing takes the fast path: `raw − last` wraps past `half` for every raw value.
+        _ => Forward {
+            last: u64::MAX,
+            base: 0,
+            half: 0,
+        },
+    }
 }
 
-impl Unwrapper {
-    /// An unwrapper for a `bits`-bit counter (`bits` < 64).
-    pub(crate) fn new(bits: u32) -> Self {
-        Self {
-            bits,
-            last: None,
-            epoch: 0,
-        }
-    }
-
-    /// Wraps seen so far.
-    pub(crate) fn wraps(&self) -> u64 {
-        self.epoch
-    }
-
-    /// The state for a decoding loop's fast path ([`Forward`]), handed back with
-    /// [`Unwrapper::resume`] when the loop ends.
-    pub(crate) fn forward(&self) -> Forward {
-        let half = 1u64 << (self.bits - 1);
-        // `base + raw` must fit an i64 for every raw value of the period.
-        let base = self.epoch.checked_mul(1u64 << self.bits).filter(|b| {
-            b.checked_add(1u64 << self.bits)
-                .is_some_and(|e| e <= i64::MAX as u64)
-        });
-        match (self.last, base) {
-            (Some(last), Some(base)) => Forward { last, base, half },
-            // Nothing takes the fast path: `raw − last` wraps past `half` for every raw value.
-            _ => Forward {
-                last: u64::MAX,
-                base: 0,
-                half: 0,
-            },
-        }
-    }
-
-    /// Takes back the last value a [`Forward`] accepted.
-    pub(crate) fn resume(&mut self, f: &Forward) {
-        if f.half > 0 {
-            self.last = Some(f.last);
-        }
-    }
-
-    /// The unwrapped value of `raw`; `None` when it does not fit an `i64`.
-    pub(crate) fn unwrap(&mut self, raw: u64) -> Option<i64> {
-        let half = 1u64 << (self.bits - 1);
-        let mut epoch = self.epoch;
-        match self.last {
-            Some(last) if raw < last && last - raw > half => {
-                self.epoch += 1;
-                epoch = self.epoch;
-                self.last = Some(raw);
-            }
-            Some(last) if raw > last && raw - last > half && epoch > 0 => epoch -= 1,
-            _ => self.last = Some(raw),
-        }
-        epoch
-            .checked_mul(1u64 << self.bits)
-            .and_then(|base| base.checked_add(raw))
-            .and_then(|v| i64::try_from(v).ok())
+/// Takes back into `time` the last value a [`Forward`] accepted.
+pub(crate) fn resume(time: &mut Unwrapper, f: &Forward) {
+    if f.half > 0 {
+        time.set_last(f.last);
     }
 }
 
@@ -265,9 +223,9 @@ impl Forward {
     #[cold]
     #[inline(never)]
     fn by_unwrapper(&mut self, time: &mut Unwrapper, raw: u64) -> Option<i64> {
-        time.resume(self);
+        resume(time, self);
         let t = time.unwrap(raw);
-        *self = time.forward();
+        *self = forward(time);
         t
     }
 }
@@ -392,7 +350,7 @@ mod tests {
         for bits in [3u32, 8, 32, 62] {
             let period = 1u64 << bits;
             let (mut plain, mut fast) = (Unwrapper::new(bits), Unwrapper::new(bits));
-            let mut forward = fast.forward();
+            let mut forward = forward(&fast);
             let (mut raw, mut taken) = (0u64, 0);
             let mut next = crate::test_rng(0x9E37_79B9_7F4A_7C15 ^ u64::from(bits));
             for i in 0..20_000 {
@@ -411,7 +369,7 @@ mod tests {
                     "bits {bits}, value {i}: {raw}"
                 );
             }
-            fast.resume(&forward);
+            resume(&mut fast, &forward);
             assert_eq!(fast.wraps(), plain.wraps(), "bits {bits}");
             assert!(taken > 500, "bits {bits}: the fast path took {taken}");
         }

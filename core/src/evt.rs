@@ -1,0 +1,464 @@
+//! Prophesee sensor words: EVT 2.0 and EVT 3.0 event streams decoded into [`Event`]s.
+//!
+//! Prophesee's sensors (the GenX320 beside a microcontroller, the IMX636 in the EVKs) stream
+//! events in these encodings, and their RAW files store them after a text header. A decoder
+//! here takes the words as little-endian bytes, as a DMA buffer or a file holds them, keeps its
+//! state across calls (a buffer may end anywhere after a whole word), and writes events through
+//! a closure or into a slice: no allocation, no unsafe code. The host's RAW reader runs it.
+//!
+//! EVT 2.0: u32 words, type in bits 28–31: `0x0`/`0x1` CD OFF/ON (t low 6 bits in 22–27, x in
+//! 11–21, y in 0–10), `0x8` time high (bits 0–27 = t >> 6), `0xA`/`0xE`/`0xF` skipped.
+//!
+//! EVT 3.0: u16 words, type in bits 12–15: `0x0` y, `0x2` one event at x (polarity bit 11),
+//! `0x3` vector base x and polarity, `0x4`/`0x5` 12- and 8-bit vectors of events from the base
+//! (which then moves on by 12 or 8), `0x6`/`0x8` time low and time high (12 bits each: 24-bit
+//! time), `0x7`/`0xA`/`0xE`/`0xF` skipped.
+//!
+//! Recoveries, each counted in [`EvtCounts`]: the time-high counter's wraps are unwrapped
+//! ([`Unwrapper`]); events before the first time-high word (EVT 3.0: or the first y) have no
+//! time base and are dropped, as Prophesee's OpenEB does; a time-high word that changes the
+//! period sets the EVT 3.0 time low to 0 (OpenEB); in an EVT 3.0 stream that has given one
+//! time-high word so far, a time low more than 2,048 µs below the previous one with no
+//! time-high word between starts the next period (expelliarmus writes such files; with more
+//! time-high words, time lows are taken as given, as OpenEB takes them). Reserved word types,
+//! pixels outside the sensor and timestamps beyond 64-bit microseconds are [`EvtError`]s.
+//!
+//! ```
+//! use evpose_core::evt::{Encoding, EvtDecoder};
+//! use evpose_core::Event;
+//!
+//! // EVT 3.0: time high 1, y = 7, time low 5, then an ON event at x = 3.
+//! let words: [u16; 4] = [0x8001, 0x0007, 0x6005, 0x2803];
+//! let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+//! let mut d = EvtDecoder::new(Encoding::Evt3, Some((320, 320)));
+//! let mut out = [Event::default(); 16];
+//! let p = d.decode(&bytes, &mut out).unwrap();
+//! assert_eq!((p.bytes, p.events), (8, 1));
+//! assert_eq!(out[0], Event::new(3, 7, (1 << 12) | 5, true));
+//! ```
+
+use crate::Event;
+
+/// Unwraps a free-running counter of `bits` bits into a monotonic count.
+///
+/// A step back by more than half the period is a wrap. A step forward by more than half the
+/// period right after a wrap is a late value from before the wrap (events of several cameras
+/// or pixels are not always in strict order), and is placed in the previous period.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Unwrapper {
+    bits: u32,
+    last: Option<u64>,
+    epoch: u64,
+}
+
+impl Unwrapper {
+    /// An unwrapper for a `bits`-bit counter (`bits` from 1 to 63).
+    pub const fn new(bits: u32) -> Self {
+        Self {
+            bits,
+            last: None,
+            epoch: 0,
+        }
+    }
+
+    /// The counter's width in bits.
+    pub const fn bits(&self) -> u32 {
+        self.bits
+    }
+
+    /// Wraps seen so far (the current period).
+    pub const fn wraps(&self) -> u64 {
+        self.epoch
+    }
+
+    /// The last raw value taken, if any.
+    pub const fn last(&self) -> Option<u64> {
+        self.last
+    }
+
+    /// Takes `raw` as the last value, in the current period (a caller's fast path that
+    /// unwrapped steps forward itself hands its last value back).
+    pub fn set_last(&mut self, raw: u64) {
+        self.last = Some(raw);
+    }
+
+    /// The unwrapped value of `raw`; `None` when it does not fit an `i64`.
+    pub fn unwrap(&mut self, raw: u64) -> Option<i64> {
+        let half = 1u64 << (self.bits - 1);
+        let mut epoch = self.epoch;
+        match self.last {
+            Some(last) if raw < last && last - raw > half => {
+                self.epoch += 1;
+                epoch = self.epoch;
+                self.last = Some(raw);
+            }
+            Some(last) if raw > last && raw - last > half && epoch > 0 => epoch -= 1,
+            _ => self.last = Some(raw),
+        }
+        epoch
+            .checked_mul(1u64 << self.bits)
+            .and_then(|base| base.checked_add(raw))
+            .and_then(|v| i64::try_from(v).ok())
+    }
+}
+
+/// The word encoding of a stream.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Encoding {
+    /// EVT 2.0: 32-bit words, one event each.
+    Evt2,
+    /// EVT 3.0: 16-bit words, up to 12 events each (vectors).
+    Evt3,
+}
+
+impl Encoding {
+    /// Bytes per word.
+    pub const fn word_bytes(self) -> usize {
+        match self {
+            Self::Evt2 => 4,
+            Self::Evt3 => 2,
+        }
+    }
+
+    /// The most events one word gives.
+    pub const fn max_events_per_word(self) -> usize {
+        match self {
+            Self::Evt2 => 1,
+            Self::Evt3 => 12,
+        }
+    }
+}
+
+/// Bad words: `at` is the byte index of the word in the slice given to [`EvtDecoder::decode`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum EvtError {
+    /// A word of a type the encoding reserves.
+    ReservedType {
+        /// Byte index of the word.
+        at: usize,
+        /// The word.
+        word: u32,
+    },
+    /// An event outside the sensor size given to [`EvtDecoder::new`].
+    OutsideSensor {
+        /// Byte index of the word.
+        at: usize,
+        /// The event's column.
+        x: u32,
+        /// The event's row.
+        y: u32,
+        /// The sensor's width and height.
+        size: (u16, u16),
+    },
+    /// With no sensor size given, an x beyond 16 bits (an EVT 3.0 vector run past 65535).
+    WideX {
+        /// Byte index of the word.
+        at: usize,
+        /// The column.
+        x: u32,
+    },
+    /// A time-high word whose time does not fit 64-bit microseconds.
+    TimeOverflow {
+        /// Byte index of the word.
+        at: usize,
+    },
+}
+
+/// What a decoder recovered from, so far.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct EvtCounts {
+    /// Events before the stream gave their time base (EVT 3.0: or their row), dropped.
+    pub dropped_events: u64,
+    /// Words of the skipped types (triggers, "other", continuations).
+    pub skipped_words: u64,
+    /// Wraps of the time-high counter, unwrapped.
+    pub timestamp_wraps: u64,
+    /// EVT 3.0 time-low wraps taken as the next period with no time-high word (see the module
+    /// documentation).
+    pub implied_time_highs: u64,
+}
+
+/// How far one [`EvtDecoder::decode`] call went.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Progress {
+    /// Bytes used: whole words. The rest (a cut word, or words left because the output was
+    /// nearly full) goes to the next call.
+    pub bytes: usize,
+    /// Events written.
+    pub events: usize,
+}
+
+/// A streaming EVT 2.0 / 3.0 decoder: a few words of state, no buffer.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct EvtDecoder {
+    encoding: Encoding,
+    size: Option<(u16, u16)>,
+    /// Unwrapped time-high value, once one was seen.
+    high: Option<i64>,
+    high_counter: Unwrapper,
+    /// EVT 3.0: time low, row, vector base and polarity.
+    low: i64,
+    /// EVT 3.0: a time-low word came since the last time-high word.
+    low_seen: bool,
+    /// EVT 3.0: time-high words so far.
+    high_words: u64,
+    y: Option<u16>,
+    base_x: u32,
+    on: bool,
+    counts: EvtCounts,
+}
+
+impl EvtDecoder {
+    /// A decoder at the start of a stream. With `size`, events outside it are errors; without,
+    /// any x and y the words can hold are taken.
+    pub const fn new(encoding: Encoding, size: Option<(u16, u16)>) -> Self {
+        Self {
+            encoding,
+            size,
+            high: None,
+            high_counter: Unwrapper::new(match encoding {
+                Encoding::Evt2 => 28,
+                Encoding::Evt3 => 12,
+            }),
+            low: 0,
+            low_seen: false,
+            high_words: 0,
+            y: None,
+            base_x: 0,
+            on: false,
+            counts: EvtCounts {
+                dropped_events: 0,
+                skipped_words: 0,
+                timestamp_wraps: 0,
+                implied_time_highs: 0,
+            },
+        }
+    }
+
+    /// The stream's encoding.
+    pub const fn encoding(&self) -> Encoding {
+        self.encoding
+    }
+
+    /// What the decoder recovered from so far.
+    pub const fn counts(&self) -> EvtCounts {
+        self.counts
+    }
+
+    /// Decodes whole words of `bytes` into `out` while a word's events still fit (one per
+    /// EVT 2.0 word, up to 12 per EVT 3.0 word); returns the bytes used and events written.
+    pub fn decode(&mut self, bytes: &[u8], out: &mut [Event]) -> Result<Progress, EvtError> {
+        let room = out.len();
+        let mut slots = out.iter_mut();
+        self.decode_with(bytes, room, |e| {
+            // `room` keeps the events within `out`: every event has its slot.
+            if let Some(slot) = slots.next() {
+                *slot = e;
+            }
+        })
+    }
+
+    /// [`EvtDecoder::decode`] with a sink: `emit` takes each event; decoding stops before a
+    /// word once fewer than [`Encoding::max_events_per_word`] of `room` events are left.
+    pub fn decode_with(
+        &mut self,
+        bytes: &[u8],
+        room: usize,
+        emit: impl FnMut(Event),
+    ) -> Result<Progress, EvtError> {
+        match self.encoding {
+            Encoding::Evt2 => self.evt2(bytes, room, emit),
+            Encoding::Evt3 => self.evt3(bytes, room, emit),
+        }
+    }
+
+    #[inline]
+    fn check(&self, at: usize, x: u32, y: u32) -> Result<(), EvtError> {
+        match self.size {
+            Some((w, h)) if x >= u32::from(w) || y >= u32::from(h) => {
+                Err(EvtError::OutsideSensor {
+                    at,
+                    x,
+                    y,
+                    size: (w, h),
+                })
+            }
+            None if x > u32::from(u16::MAX) => Err(EvtError::WideX { at, x }),
+            _ => Ok(()),
+        }
+    }
+
+    fn evt2(
+        &mut self,
+        bytes: &[u8],
+        room: usize,
+        mut emit: impl FnMut(Event),
+    ) -> Result<Progress, EvtError> {
+        let mut events = 0;
+        for (i, b) in bytes.chunks_exact(4).enumerate() {
+            if events >= room {
+                return Ok(Progress {
+                    bytes: i * 4,
+                    events,
+                });
+            }
+            let w = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            match w >> 28 {
+                ty @ (0x0 | 0x1) => {
+                    let Some(high) = self.high else {
+                        self.counts.dropped_events += 1;
+                        continue;
+                    };
+                    let x = (w >> 11) & 0x7FF;
+                    let y = w & 0x7FF;
+                    self.check(i * 4, x, y)?;
+                    let t = (high << 6) | i64::from((w >> 22) & 0x3F);
+                    emit(Event::new(x as u16, y as u16, t, ty == 1));
+                    events += 1;
+                }
+                0x8 => {
+                    let high = self
+                        .high_counter
+                        .unwrap(u64::from(w & 0x0FFF_FFFF))
+                        .filter(|&h| h < 1 << 57)
+                        .ok_or(EvtError::TimeOverflow { at: i * 4 })?;
+                    self.high = Some(high);
+                    self.counts.timestamp_wraps = self.high_counter.wraps();
+                }
+                0xA | 0xE | 0xF => self.counts.skipped_words += 1,
+                _ => return Err(EvtError::ReservedType { at: i * 4, word: w }),
+            }
+        }
+        Ok(Progress {
+            bytes: bytes.len() / 4 * 4,
+            events,
+        })
+    }
+
+    fn evt3(
+        &mut self,
+        bytes: &[u8],
+        room: usize,
+        mut emit: impl FnMut(Event),
+    ) -> Result<Progress, EvtError> {
+        let mut events = 0;
+        for (i, b) in bytes.chunks_exact(2).enumerate() {
+            if events + 12 > room {
+                return Ok(Progress {
+                    bytes: i * 2,
+                    events,
+                });
+            }
+            let at = i * 2;
+            let w = u16::from_le_bytes([b[0], b[1]]);
+            match w >> 12 {
+                0x0 => self.y = Some(w & 0x7FF),
+                0x2 => {
+                    let x = u32::from(w & 0x7FF);
+                    let on = w & 0x800 != 0;
+                    events += self.emit3(at, x, on, 1, &mut emit)?;
+                }
+                0x3 => {
+                    self.base_x = u32::from(w & 0x7FF);
+                    self.on = w & 0x800 != 0;
+                }
+                0x4 => events += self.vector(at, u32::from(w & 0xFFF), 12, &mut emit)?,
+                0x5 => events += self.vector(at, u32::from(w & 0xFF), 8, &mut emit)?,
+                0x6 => {
+                    let low = i64::from(w & 0xFFF);
+                    // Time low back by more than half its range with no time-high word since
+                    // the last time low, in a stream that gave one time-high word so far: its
+                    // counter wrapped into the next period.
+                    let wrapped = self.low_seen && self.high_words == 1 && low + 0x800 < self.low;
+                    if let (true, Some(high)) = (wrapped, self.high) {
+                        self.high = Some(
+                            self.high_counter
+                                .unwrap(((high + 1) & 0xFFF) as u64)
+                                .filter(|&h| h < 1 << 50)
+                                .ok_or(EvtError::TimeOverflow { at })?,
+                        );
+                        self.counts.timestamp_wraps = self.high_counter.wraps();
+                        self.counts.implied_time_highs += 1;
+                    }
+                    self.low = low;
+                    self.low_seen = true;
+                }
+                0x8 => {
+                    let high = self
+                        .high_counter
+                        .unwrap(u64::from(w & 0xFFF))
+                        .filter(|&h| h < 1 << 50)
+                        .ok_or(EvtError::TimeOverflow { at })?;
+                    // A new time-high period starts at time low 0 (as OpenEB decodes it).
+                    if self.high != Some(high) {
+                        self.low = 0;
+                    }
+                    self.high = Some(high);
+                    self.high_words += 1;
+                    self.low_seen = false;
+                    self.counts.timestamp_wraps = self.high_counter.wraps();
+                }
+                0x7 | 0xA | 0xE | 0xF => self.counts.skipped_words += 1,
+                _ => {
+                    return Err(EvtError::ReservedType {
+                        at,
+                        word: u32::from(w),
+                    })
+                }
+            }
+        }
+        Ok(Progress {
+            bytes: bytes.len() / 2 * 2,
+            events,
+        })
+    }
+
+    /// Events of a VECT_12 / VECT_8 word; moves the base x on by `width`.
+    fn vector(
+        &mut self,
+        at: usize,
+        mut mask: u32,
+        width: u32,
+        emit: &mut impl FnMut(Event),
+    ) -> Result<usize, EvtError> {
+        let base_x = self.base_x;
+        let on = self.on;
+        self.base_x = base_x.saturating_add(width);
+        if self.high.is_none() || self.y.is_none() {
+            self.counts.dropped_events += u64::from(mask.count_ones());
+            return Ok(0);
+        }
+        let mut n = 0;
+        while mask != 0 {
+            let bit = mask.trailing_zeros();
+            mask &= mask - 1;
+            n += self.emit3(at, base_x + bit, on, 0, emit)?;
+        }
+        Ok(n)
+    }
+
+    /// One EVT 3.0 event at `x` in the current row; `count_drop` is what to count as dropped
+    /// when the time base or row is not known yet (vectors count their own). Returns the
+    /// events written (0 or 1).
+    #[inline]
+    fn emit3(
+        &mut self,
+        at: usize,
+        x: u32,
+        on: bool,
+        count_drop: u64,
+        emit: &mut impl FnMut(Event),
+    ) -> Result<usize, EvtError> {
+        let (Some(high), Some(y)) = (self.high, self.y) else {
+            self.counts.dropped_events += count_drop;
+            return Ok(0);
+        };
+        self.check(at, x, u32::from(y))?;
+        emit(Event::new(x as u16, y, (high << 12) | self.low, on));
+        Ok(1)
+    }
+}

@@ -1,0 +1,224 @@
+//! The EVT 2.0 / 3.0 decoder as firmware drives it: words arriving in buffers cut anywhere,
+//! output slices of any size, typed errors with the word's byte index. (The host's RAW reader
+//! runs the same decoder; `host/tests/formats.rs` checks the formats' words one by one.)
+
+use evpose_core::evt::{Encoding, EvtCounts, EvtDecoder, EvtError, Progress};
+use evpose_core::Event;
+use proptest::prelude::*;
+
+fn evt2_word(ty: u32, payload: u32) -> [u8; 4] {
+    ((ty << 28) | payload).to_le_bytes()
+}
+
+/// An EVT 2.0 stream of `events` (time-ordered, times below 2^34).
+fn evt2(events: &[Event]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut high = None;
+    for e in events {
+        if high != Some(e.t >> 6) {
+            high = Some(e.t >> 6);
+            out.extend(evt2_word(0x8, (e.t >> 6) as u32 & 0x0FFF_FFFF));
+        }
+        let payload = ((e.t as u32 & 0x3F) << 22) | (u32::from(e.x) << 11) | u32::from(e.y);
+        out.extend(evt2_word(u32::from(e.on), payload));
+    }
+    out
+}
+
+fn evt3_word(out: &mut Vec<u8>, ty: u16, payload: u16) {
+    out.extend(((ty << 12) | payload).to_le_bytes());
+}
+
+/// An EVT 3.0 stream of `events` (time-ordered, times below 2^24): runs of events on one row
+/// at one time become vectors.
+fn evt3(events: &[Event]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let (mut high, mut low, mut y) = (None, None, None);
+    for e in events {
+        if high != Some(e.t >> 12) {
+            high = Some(e.t >> 12);
+            evt3_word(&mut out, 0x8, (e.t >> 12) as u16);
+            low = None;
+        }
+        if low != Some(e.t & 0xFFF) {
+            low = Some(e.t & 0xFFF);
+            evt3_word(&mut out, 0x6, (e.t & 0xFFF) as u16);
+        }
+        if y != Some(e.y) {
+            y = Some(e.y);
+            evt3_word(&mut out, 0x0, e.y);
+        }
+        if e.x % 3 == 0 {
+            // A vector of one event: base, then a 12-bit mask with bit 0.
+            evt3_word(&mut out, 0x3, (u16::from(e.on) << 11) | e.x);
+            evt3_word(&mut out, 0x4, 1);
+        } else {
+            evt3_word(&mut out, 0x2, (u16::from(e.on) << 11) | e.x);
+        }
+    }
+    out
+}
+
+/// Decodes `bytes` fed in pieces of `chunk` bytes into outputs of `room` events.
+fn decode_chunked(
+    encoding: Encoding,
+    bytes: &[u8],
+    chunk: usize,
+    room: usize,
+) -> (Vec<Event>, EvtCounts) {
+    let mut d = EvtDecoder::new(encoding, Some((1280, 720)));
+    let mut events = Vec::new();
+    let mut pending: Vec<u8> = Vec::new();
+    let mut out = vec![Event::default(); room];
+    for piece in bytes.chunks(chunk) {
+        pending.extend_from_slice(piece);
+        loop {
+            let Progress {
+                bytes: used,
+                events: n,
+            } = d.decode(&pending, &mut out).unwrap();
+            events.extend_from_slice(&out[..n]);
+            pending.drain(..used);
+            if used == 0 || pending.len() < encoding.word_bytes() {
+                break;
+            }
+        }
+    }
+    assert!(pending.is_empty(), "whole words in the end");
+    (events, d.counts())
+}
+
+fn events(seed: u64, n: usize, span: i64) -> Vec<Event> {
+    let mut s = seed | 1;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        s
+    };
+    let mut t = 0;
+    (0..n)
+        .map(|_| {
+            t += (next() % (span as u64)) as i64;
+            let r = next();
+            Event::new(
+                (r % 1280) as u16,
+                ((r >> 16) % 720) as u16,
+                t,
+                r >> 40 & 1 == 1,
+            )
+        })
+        .collect()
+}
+
+proptest! {
+    /// Buffers cut at any byte and outputs of any size give the same events.
+    #[test]
+    fn buffers_cut_anywhere_decode_alike(seed in any::<u64>(), chunk in 1usize..200, room in 12usize..64) {
+        let ev = events(seed, 300, 3_000);
+        for (enc, bytes) in [(Encoding::Evt2, evt2(&ev)), (Encoding::Evt3, evt3(&ev))] {
+            let (got, counts) = decode_chunked(enc, &bytes, chunk, room);
+            prop_assert_eq!(&got, &ev);
+            prop_assert_eq!(counts, EvtCounts::default());
+        }
+    }
+}
+
+#[test]
+fn outputs_stop_before_a_word_that_might_not_fit() {
+    let ev = events(7, 40, 50);
+    let bytes = evt3(&ev);
+    let mut d = EvtDecoder::new(Encoding::Evt3, None);
+    // Fewer than 12 free places: no word is decoded (a vector can give 12 events).
+    let mut small = [Event::default(); 11];
+    assert_eq!(
+        d.decode(&bytes, &mut small).unwrap(),
+        Progress {
+            bytes: 0,
+            events: 0
+        }
+    );
+    // The sink form counts the room the same way.
+    let mut seen = Vec::new();
+    let p = d.decode_with(&bytes, 1000, |e| seen.push(e)).unwrap();
+    assert_eq!((p.bytes, p.events, seen), (bytes.len(), 40, ev));
+}
+
+#[test]
+fn errors_name_the_word() {
+    // EVT 2.0: a reserved type at the third word; a pixel outside 64 x 64 at the second.
+    let mut bytes = Vec::new();
+    bytes.extend(evt2_word(0x8, 1));
+    bytes.extend(evt2_word(0x1, 3 << 11 | 4));
+    bytes.extend(evt2_word(0x2, 0));
+    let mut d = EvtDecoder::new(Encoding::Evt2, None);
+    let mut out = [Event::default(); 8];
+    assert_eq!(
+        d.decode(&bytes, &mut out),
+        Err(EvtError::ReservedType {
+            at: 8,
+            word: 0x2000_0000
+        })
+    );
+    let mut d = EvtDecoder::new(Encoding::Evt2, Some((64, 64)));
+    let far = [evt2_word(0x8, 1), evt2_word(0x0, 100 << 11 | 4)].concat();
+    assert_eq!(
+        d.decode(&far, &mut out),
+        Err(EvtError::OutsideSensor {
+            at: 4,
+            x: 100,
+            y: 4,
+            size: (64, 64)
+        })
+    );
+    // EVT 3.0 without a size: a vector run past x = 65535.
+    let mut wide = Vec::new();
+    evt3_word(&mut wide, 0x8, 0);
+    evt3_word(&mut wide, 0x0, 0);
+    evt3_word(&mut wide, 0x3, 2047);
+    for _ in 0..5500 {
+        evt3_word(&mut wide, 0x4, 0);
+    }
+    evt3_word(&mut wide, 0x4, 1);
+    let mut d = EvtDecoder::new(Encoding::Evt3, None);
+    let err = d.decode_with(&wide, usize::MAX, |_| {}).unwrap_err();
+    assert_eq!(
+        err,
+        EvtError::WideX {
+            at: wide.len() - 2,
+            x: 2047 + 5500 * 12
+        }
+    );
+}
+
+#[test]
+fn counts_and_recoveries() {
+    let mut b = Vec::new();
+    evt3_word(&mut b, 0x2, 1); // no time base: dropped
+    evt3_word(&mut b, 0x8, 0xFFF);
+    evt3_word(&mut b, 0x0, 5);
+    evt3_word(&mut b, 0xA, 0); // a trigger: skipped
+    evt3_word(&mut b, 0x6, 0xF00);
+    evt3_word(&mut b, 0x2, 2);
+    evt3_word(&mut b, 0x6, 0x010); // one time-high word so far: the next period (wrapped)
+    evt3_word(&mut b, 0x2, 3);
+    let mut d = EvtDecoder::new(Encoding::Evt3, Some((8, 8)));
+    let mut out = [Event::default(); 32];
+    let p = d.decode(&b, &mut out).unwrap();
+    assert_eq!(
+        &out[..p.events],
+        [
+            Event::new(2, 5, (0xFFF << 12) | 0xF00, false),
+            Event::new(3, 5, (0x1000 << 12) | 0x010, false)
+        ]
+    );
+    assert_eq!(
+        d.counts(),
+        EvtCounts {
+            dropped_events: 1,
+            skipped_words: 1,
+            timestamp_wraps: 1,
+            implied_time_highs: 1,
+        }
+    );
+}
