@@ -6,6 +6,9 @@
 #                        bundled street-00..02) of the DAVIS346 street recording, in the EVS1
 #                        stream format (firmware/src/input.rs), written by the reference encoder
 #                        in tests/firmware_qemu.rs
+#   street-00.evt3       the first window's 7,500 events as EVT 3.0 words (no header), written
+#                        by faery for the boot check of the core's EVT decoder: made by
+#                        scripts/third-party-formats.py --firmware-asset (needs faery; see there)
 #
 # Usage: scripts/make-firmware-assets.sh [RECORDING]
 #        (default ../shared/recordings/davis346-street.aedat4)

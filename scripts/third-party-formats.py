@@ -18,6 +18,9 @@ aedat (Rust; AEDAT 4).
    wraps after 16.8 s); 24 rows of events at one timestamp each (EVT 3.0 vector words); and
    faery's DAT version 1 of 1,000 street events inside a 304 x 240 sensor.
 
+5. `--firmware-asset PATH`: faery's EVT 3.0 words (the header cut off) of the street recording's
+   first 7,500 events, the firmware's boot check of the core's EVT decoder
+   (`firmware/assets/street-00.evt3`).
 usage: python3 -m venv /tmp/tp && /tmp/tp/bin/pip install expelliarmus==1.1.12 faery==0.7.1 \\
            aedat==2.3.0
        /tmp/tp/bin/python scripts/third-party-formats.py [--evpose target/release/evpose] \\
@@ -123,6 +126,9 @@ def main():
     ap.add_argument("--evpose", default=str(REPO / "target" / "release" / "evpose"))
     ap.add_argument("--real", type=pathlib.Path)
     ap.add_argument("--write-fixtures", type=pathlib.Path)
+    ap.add_argument("--firmware-asset", type=pathlib.Path,
+                    help="write faery's EVT 3.0 words (no header) of the street recording's "
+                         "first 7,500 events here (firmware/assets/street-00.evt3)")
     a = ap.parse_args()
     ev, why = evpose_read(a.evpose, STREET)
     if ev is None:
@@ -220,6 +226,19 @@ def main():
                 if stem == "sparse" and name == "expelliarmus evt3":
                     path.unlink()
         print(f"fixtures in {out}")
+    # 5. The firmware's EVT 3.0 asset: the words alone, as a sensor streams them.
+    if a.firmware_asset:
+        with tempfile.TemporaryDirectory() as d:
+            raw = pathlib.Path(d) / "street-00.raw"
+            _, fa = structured(ev[:7500])
+            faery.events_stream_from_array(fa, (346, 260)).to_file(
+                str(raw), version="evt3", zero_t0=False)
+            data = raw.read_bytes()
+            body = 0
+            while data[body:body + 1] == b"%":
+                body = data.index(b"\n", body) + 1
+            a.firmware_asset.write_bytes(data[body:])
+            print(f"{a.firmware_asset}: {len(data) - body} bytes of EVT 3.0 words")
     print(f"{len(failures)} failed" if failures else "all equal")
     sys.exit(1 if failures else 0)
 

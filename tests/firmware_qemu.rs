@@ -714,6 +714,18 @@ fn run_and_compare(cpu: Cpu) -> Checked {
         0,
         "{selftest}"
     );
+    // The core's EVT 3.0 decoder on the real instructions: faery's EVT 3.0 words of the first
+    // window give its 7,500 events (`input::check_evt3`, against the EVS1 stream).
+    let evt3 = lines
+        .iter()
+        .find(|l| l.starts_with("evt3:"))
+        .unwrap_or_else(|| panic!("no evt3 line:\n{text}"));
+    assert_eq!(field::<u32>(evt3, "events"), 7_500, "{evt3}");
+    assert_eq!(field::<u32>(evt3, "mismatches"), 0, "{evt3}");
+    println!(
+        "EVT 3.0 decoding: {:.1} instructions per event",
+        field::<u64>(evt3, "instructions") as f64 / 7_500.0
+    );
 
     let (_, events) = evs::decode(&std::fs::read(event_asset()).unwrap()).unwrap();
     let blob = AlignedBlob::new(&std::fs::read(model_asset()).unwrap());

@@ -32,6 +32,7 @@
 //! exactly the events of the bundled `.npy` windows.
 
 use embedded_io::{ErrorKind, Read, ReadExactError};
+use evpose_core::evt::{Encoding, EvtDecoder};
 use evpose_core::Event;
 
 /// Magic bytes of an `EVS1` stream.
@@ -332,6 +333,68 @@ impl Read for Trickle<'_> {
         self.data = rest;
         Ok(n)
     }
+}
+
+/// What [`check_evt3`] found.
+pub struct Evt3Check {
+    /// Events the EVT 3.0 words gave.
+    pub events: u32,
+    /// Events that differ from the `EVS1` stream's (and decoding errors).
+    pub mismatches: u32,
+    /// Clock ticks spent in the EVT 3.0 decoder.
+    pub ticks: u64,
+}
+
+/// Bytes of EVT 3.0 words handed to the decoder at a time (a DMA buffer's worth).
+const EVT3_PIECE: usize = 512;
+
+/// Boot check of the core's EVT 3.0 decoder (`evpose_core::evt`, what a Prophesee sensor
+/// streams) on the real instructions: `words` are EVT 3.0 words of the recording's first
+/// events, written by faery (an independent encoder; `scripts/third-party-formats.py
+/// --firmware-asset`), decoded [`EVT3_PIECE`] bytes at a time into batches of 64 and compared
+/// with the `EVS1` stream `evs` event by event (times from each stream's first event).
+pub fn check_evt3(evs: &'static [u8], words: &'static [u8]) -> Evt3Check {
+    let mut check = Evt3Check {
+        events: 0,
+        mismatches: 0,
+        ticks: 0,
+    };
+    let Ok(mut reader) = EvsReader::new(evs) else {
+        check.mismatches += 1;
+        return check;
+    };
+    let mut decoder = EvtDecoder::new(Encoding::Evt3, Some((346, 260)));
+    let mut batch = [Event::default(); 64];
+    let mut first = None;
+    let mut rest = words;
+    while !rest.is_empty() {
+        let piece = rest.get(..EVT3_PIECE.min(rest.len())).unwrap_or_default();
+        let start = crate::clock::ticks();
+        let decoded = decoder.decode(piece, &mut batch);
+        check.ticks += crate::clock::ticks() - start;
+        let Ok(p) = decoded else {
+            check.mismatches += 1;
+            break;
+        };
+        rest = rest.get(p.bytes..).unwrap_or_default();
+        for e in batch.iter().take(p.events) {
+            check.events += 1;
+            let Ok(Some(want)) = reader.next_event() else {
+                check.mismatches += 1;
+                continue;
+            };
+            let (t0, want_t0) = *first.get_or_insert((e.t, want.t));
+            if e.t - t0 != want.t - want_t0 || (e.x, e.y, e.on) != (want.x, want.y, want.on) {
+                check.mismatches += 1;
+            }
+        }
+        if p.bytes == 0 {
+            // A cut word at the end: the words ended inside one.
+            check.mismatches += 1;
+            break;
+        }
+    }
+    check
 }
 
 /// Words of the boot check's streams.

@@ -2,7 +2,9 @@
 //!
 //! The image embeds an int8 model blob (`models/mcu.evq` at the repository root, the trained MCU
 //! model and the default of `evpose run`) and 22,500 events of the DAVIS346 street recording
-//! (`assets/street-00-02.evs`, three 7,500-event windows). It streams the events through the
+//! (`assets/street-00-02.evs`, three 7,500-event windows), and checks at boot that the core's
+//! EVT 3.0 decoder gives the first window's events from their EVT 3.0 words
+//! (`assets/street-00.evt3`, written by faery). It streams the events through the
 //! core's rasterizer in DMA-sized batches, samples each window to the blob's point count (256)
 //! with a fixed seed, runs the int8 engine, decodes the joints, and prints per window, over defmt
 //! (semihosting under QEMU): the joints, their confidences and the temporally filtered joints
@@ -63,6 +65,10 @@ static MODEL: Aligned<[u8; include_bytes!("../../models/mcu.evq").len()]> =
     Aligned(*include_bytes!("../../models/mcu.evq"));
 static EVENTS: [u8; include_bytes!("../assets/street-00-02.evs").len()] =
     *include_bytes!("../assets/street-00-02.evs");
+/// The first window's events as EVT 3.0 words (what a Prophesee sensor streams), for the boot
+/// check of the core's EVT decoder (`input::check_evt3`).
+static EVT3: [u8; include_bytes!("../assets/street-00.evt3").len()] =
+    *include_bytes!("../assets/street-00.evt3");
 
 /// Every working buffer of the pipeline but the rasterizer's.
 struct Buffers {
@@ -162,6 +168,17 @@ fn main() -> ! {
     );
     if decoder_mismatches > 0 {
         defmt::error!("the batch event decoder disagrees with the per-event one");
+        exit(3)
+    }
+    let evt3 = input::check_evt3(&EVENTS, &EVT3);
+    println!(
+        "evt3: events={=u32} mismatches={=u32} instructions={=u64}",
+        evt3.events,
+        evt3.mismatches,
+        evt3.ticks * per_tick
+    );
+    if evt3.mismatches > 0 {
+        defmt::error!("the core's EVT 3.0 decoder disagrees with the EVS1 stream");
         exit(3)
     }
     if check.mismatches > 0 {
