@@ -2,9 +2,11 @@
 //!
 //! Prophesee's sensors (the GenX320 beside a microcontroller, the IMX636 in the EVKs) stream
 //! events in these encodings, and their RAW files store them after a text header. A decoder
-//! here takes the words as little-endian bytes, as a DMA buffer or a file holds them, keeps its
-//! state across calls (a buffer may end anywhere after a whole word), and writes events through
-//! a closure or into a slice: no allocation, no unsafe code. The host's RAW reader runs it.
+//! here takes the words as little-endian bytes, as a DMA buffer or a file holds them, and
+//! writes events through a closure or into a slice: no allocation, no unsafe code. It keeps the
+//! stream's state across calls but no bytes: it uses whole words only and says how many bytes
+//! it used ([`Progress::bytes`]), so a caller whose buffer ends inside a word hands that tail
+//! back with the next bytes. The host's RAW reader runs it.
 //!
 //! EVT 2.0: u32 words, type in bits 28–31: `0x0`/`0x1` CD OFF/ON (t low 6 bits in 22–27, x in
 //! 11–21, y in 0–10), `0x8` time high (bits 0–27 = t >> 6), `0xA`/`0xE`/`0xF` skipped.
@@ -21,7 +23,8 @@
 //! time-high word so far, a time low more than 2,048 µs below the previous one with no
 //! time-high word between starts the next period (expelliarmus writes such files; with more
 //! time-high words, time lows are taken as given, as OpenEB takes them). Reserved word types,
-//! pixels outside the sensor and timestamps beyond 64-bit microseconds are [`EvtError`]s.
+//! pixels outside the sensor (without a sensor size: an x beyond 16 bits) and timestamps
+//! beyond 64-bit microseconds are [`EvtError`]s.
 //!
 //! ```
 //! use evpose_core::evt::{Encoding, EvtDecoder};
@@ -52,10 +55,16 @@ pub struct Unwrapper {
 }
 
 impl Unwrapper {
-    /// An unwrapper for a `bits`-bit counter (`bits` from 1 to 63).
+    /// An unwrapper for a `bits`-bit counter (`bits` is clamped to 1–63).
     pub const fn new(bits: u32) -> Self {
         Self {
-            bits,
+            bits: if bits == 0 {
+                1
+            } else if bits > 63 {
+                63
+            } else {
+                bits
+            },
             last: None,
             epoch: 0,
         }
@@ -251,6 +260,7 @@ impl EvtDecoder {
 
     /// Decodes whole words of `bytes` into `out` while a word's events still fit (one per
     /// EVT 2.0 word, up to 12 per EVT 3.0 word); returns the bytes used and events written.
+    /// An `out` shorter than [`Encoding::max_events_per_word`] takes no word (`bytes: 0`).
     pub fn decode(&mut self, bytes: &[u8], out: &mut [Event]) -> Result<Progress, EvtError> {
         let room = out.len();
         let mut slots = out.iter_mut();
@@ -427,7 +437,8 @@ impl EvtDecoder {
     ) -> Result<usize, EvtError> {
         let base_x = self.base_x;
         let on = self.on;
-        self.base_x = base_x.saturating_add(width);
+        // Capped far above any sensor (x is checked below): `base_x + bit` cannot overflow.
+        self.base_x = (base_x + width).min(1 << 24);
         if self.high.is_none() || self.y.is_none() {
             self.counts.dropped_events += u64::from(mask.count_ones());
             return Ok(0);

@@ -222,3 +222,25 @@ fn counts_and_recoveries() {
         }
     );
 }
+
+#[test]
+fn a_vector_base_far_past_any_sensor_stays_an_error() {
+    // 1.5 M empty 12-bit vectors move the base past 2^24, where it stops: x never wraps.
+    let mut b = Vec::new();
+    evt3_word(&mut b, 0x8, 0);
+    evt3_word(&mut b, 0x0, 0);
+    evt3_word(&mut b, 0x3, 0);
+    for _ in 0..1_500_000 {
+        evt3_word(&mut b, 0x4, 0);
+    }
+    evt3_word(&mut b, 0x4, 1 << 3);
+    let mut d = EvtDecoder::new(Encoding::Evt3, None);
+    let err = d.decode_with(&b, usize::MAX, |_| {}).unwrap_err();
+    assert_eq!(
+        err,
+        EvtError::WideX {
+            at: b.len() - 2,
+            x: (1 << 24) + 3
+        }
+    );
+}

@@ -345,15 +345,17 @@ pub struct Evt3Check {
     pub ticks: u64,
 }
 
-/// Bytes of EVT 3.0 words handed to the decoder at a time (a DMA buffer's worth).
-const EVT3_PIECE: usize = 512;
+/// Bytes of EVT 3.0 words handed to the decoder at a time (a DMA buffer's worth); odd, so that
+/// pieces end inside words and the decoder's unused tail goes back with the next piece.
+const EVT3_PIECE: usize = 511;
 
 /// Boot check of the core's EVT 3.0 decoder (`evpose_core::evt`, what a Prophesee sensor
 /// streams) on the real instructions: `words` are EVT 3.0 words of the recording's first
 /// events, written by faery (an independent encoder; `scripts/third-party-formats.py
 /// --firmware-asset`), decoded [`EVT3_PIECE`] bytes at a time into batches of 64 and compared
-/// with the `EVS1` stream `evs` event by event (times from each stream's first event).
-pub fn check_evt3(evs: &'static [u8], words: &'static [u8]) -> Evt3Check {
+/// with the `EVS1` stream `evs` event by event (times from each stream's first event); fewer
+/// or more than `expected` events count as a mismatch too.
+pub fn check_evt3(evs: &'static [u8], words: &'static [u8], expected: u32) -> Evt3Check {
     let mut check = Evt3Check {
         events: 0,
         mismatches: 0,
@@ -393,6 +395,9 @@ pub fn check_evt3(evs: &'static [u8], words: &'static [u8]) -> Evt3Check {
             check.mismatches += 1;
             break;
         }
+    }
+    if check.events != expected {
+        check.mismatches += 1;
     }
     check
 }
