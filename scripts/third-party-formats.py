@@ -6,8 +6,9 @@ aedat (Rust; AEDAT 4).
 1. Each engine writes the street recording's events (`../shared/recordings/davis346-street.aedat4`,
    read by `evpose convert`, times from 0) in every format it writes; `evpose convert` reads each
    file back; the events must equal the ones written, exactly.
-2. The engines read evpose's AEDAT 4 (the street events, and the bundled four-camera clip) and
-   the spec-built fixtures in host/tests/fixtures/formats; they must read what evpose reads.
+2. The engines read evpose's AEDAT 4 (the street events, and the bundled four-camera clip), its
+   EVT 3.0 (`convert --out F.raw`: faery exactly, expelliarmus in x, y and polarity) and the
+   spec-built fixtures in host/tests/fixtures/formats; they must read what evpose reads.
 3. `--real DIR`: real camera files read by evpose and the engines: Prophesee RAW (`*.raw`, e.g.
    expelliarmus's test files `evt2_sample.raw` and `evt3_sample.raw`,
    github.com/open-neuromorphic/expelliarmus, tests/sample-files) against both engines, and
@@ -166,6 +167,18 @@ def main():
         subprocess.run([a.evpose, "convert", str(d / "street.npy"), "--width", "346",
                         "--height", "260", "--out", str(st)], check=True, capture_output=True)
         compare("street: evpose aedat4 -> faery", faery_read(st), ev)
+        # evpose's EVT 3.0 writer: faery reads it exactly; expelliarmus's x, y and polarity
+        # (its decoder counts a time-low step back as a wrap even after a time-high word).
+        for stem, events, size in [("street", ev, (346, 260)), ("sparse", sparse, (1280, 720)),
+                                   ("rows", rows, (1280, 720))]:
+            src, raw = d / f"{stem}-src.npy", d / f"{stem}-evpose.raw"
+            np.save(src, events.astype(np.float64))
+            subprocess.run([a.evpose, "convert", str(src), "--width", str(size[0]), "--height",
+                            str(size[1]), "--out", str(raw)], check=True, capture_output=True)
+            compare(f"{stem}: evpose evt3 -> faery", faery_read(raw), events)
+            e = expelliarmus.Wizard(encoding="evt3").read(str(raw))
+            compare(f"{stem}: evpose evt3 -> expelliarmus, x y p",
+                    as_rows(e["t"], e["x"], e["y"], e["p"])[:, [0, 1, 3]], events[:, [0, 1, 3]])
         clip = d / "clip.aedat4"
         subprocess.run([a.evpose, "convert", str(CLIP), "--out", str(clip)], check=True,
                        capture_output=True)

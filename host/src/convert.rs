@@ -1,4 +1,5 @@
-//! `evpose convert`: a recording to an (N, 4) `.npy` array or to AEDAT 4.0, streaming.
+//! `evpose convert`: a recording to an (N, 4) `.npy` array, to AEDAT 4.0 or to Prophesee EVT 3.0,
+//! streaming.
 
 use std::path::Path;
 
@@ -97,6 +98,71 @@ pub fn to_npy(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Result
         cameras: vec![camera],
         warnings,
         assumptions: summary.notes.assumptions,
+    })
+}
+
+/// Writes `camera`'s events of the recording `file` (read with `opts`) to `out` as a Prophesee
+/// RAW file in EVT 3.0 ([`io::evt::Evt3Writer`]), streaming. The sensor size is the one the file
+/// states, else `--width/--height`; without either it is an error (an EVT 3.0 header states
+/// it).
+pub fn to_evt3(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Result<Converted> {
+    check_distinct(file, out)?;
+    let mut reader = io::open_with(file, opts)?;
+    let info = reader.info().clone();
+    let stated = info
+        .cameras
+        .iter()
+        .find(|c| c.id == camera)
+        .or(info.cameras.first())
+        .and_then(|c| c.width.zip(c.height));
+    let Some((width, height)) = stated.or(opts.size) else {
+        bail!(
+            "{} states no sensor size, which an EVT 3.0 header needs: pass --width and --height",
+            file.display()
+        );
+    };
+    let path = file;
+    let file =
+        std::fs::File::create(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let mut w = io::evt::Evt3Writer::new(std::io::BufWriter::new(file), width, height)?;
+    let mut batch = Batch::default();
+    let mut picked = Vec::new();
+    let mut written = 0u64;
+    while reader
+        .read_batch(&mut batch)
+        .with_context(|| format!("{}", path.display()))?
+    {
+        picked.clear();
+        picked.extend(
+            batch
+                .events
+                .iter()
+                .zip(&batch.cameras)
+                .filter(|&(_, &c)| c == camera)
+                .map(|(e, _)| *e),
+        );
+        w.write(&picked)
+            .with_context(|| format!("cannot write {}", out.display()))?;
+        written += picked.len() as u64;
+    }
+    let origin = w.origin().unwrap_or(0);
+    w.finish()?;
+    let mut warnings = Vec::new();
+    if written == 0 {
+        warnings.push(format!("{}: camera {camera} has no events", path.display()));
+    }
+    let mut assumptions = reader.notes().assumptions;
+    if origin != 0 {
+        assumptions.push(format!(
+            "times written from the first event's: {origin} µs subtracted (EVT 3.0 holds 24 \
+             bits of time from 0)"
+        ));
+    }
+    Ok(Converted {
+        events: written,
+        cameras: vec![camera],
+        warnings,
+        assumptions,
     })
 }
 

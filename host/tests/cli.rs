@@ -217,6 +217,20 @@ fn convert_dhp19_to_npy_per_camera_and_to_aedat4() {
     assert_eq!(shape, [want.len() as u64 / 4, 4]);
     assert_eq!(rows, want);
 
+    // EVT 3.0: one camera, its events exactly (times below 2^24 µs are kept).
+    let raw = tmp("dhp19-cam2.raw");
+    evpose(&["convert", s(&path), "--out", s(&raw), "--camera", "2"]);
+    let got = read_all(&raw);
+    let want2: Vec<_> = events
+        .iter()
+        .filter(|e| e.cam == 2)
+        .map(|e| (0, evpose_core::Event::new(e.x, e.y, e.t, e.on)))
+        .collect();
+    assert_eq!(got, want2);
+    let v = json(&["info", s(&raw), "--json"]);
+    assert_eq!(v["format"], "evt3");
+    assert_eq!(v["cameras"][0]["width"], 346);
+
     // AEDAT 4: one stream per camera, in camera order, so the ids survive.
     let all = tmp("dhp19-all.aedat4");
     evpose(&["convert", s(&path), "--out", s(&all)]);

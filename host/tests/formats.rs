@@ -744,6 +744,55 @@ fn evt3_time_words_follow_openeb() {
     assert_eq!(notes.timestamp_wraps, 1);
 }
 
+/// The EVT 3.0 writer, read back: long gaps (more than half the time high's range, and its
+/// wrap), small steps back, rows, both polarities, the corners; a late origin; what it refuses.
+#[test]
+fn evt3_writer_round_trips() {
+    use evpose_host::io::evt::Evt3Writer;
+    let mut events: Vec<Event> = synthetic(3000, 1280, 720, 1, 0)
+        .iter()
+        .map(|e| Event::new(e.x, e.y, e.t, e.on))
+        .collect();
+    // Gaps of 9 s and 40 s, a step back of 3 ms, the sensor's corners at one time.
+    events[1000].t += 9_000_000;
+    for e in &mut events[1001..] {
+        e.t += 9_000_000;
+    }
+    for e in &mut events[2000..] {
+        e.t += 40_000_000;
+    }
+    events[2500].t -= 3_000;
+    let last = events[2999].t;
+    events.push(Event::new(0, 0, last, true));
+    events.push(Event::new(1279, 719, last, false));
+    let write = |events: &[Event]| {
+        let mut w = Evt3Writer::new(Vec::new(), 1280, 720).unwrap();
+        w.write(events).map(|()| w.finish().unwrap())
+    };
+    let d = decode(Dec::Evt3, &write(&events).unwrap()).unwrap();
+    let got: Vec<Event> = d.events.iter().map(|(_, e)| *e).collect();
+    assert_eq!(got, events);
+    assert_eq!(d.notes.implied_time_highs, 0);
+    assert_eq!(d.notes.timestamp_wraps, 2);
+    // A Unix-time recording is written from its first event.
+    let late: Vec<Event> = events
+        .iter()
+        .map(|e| Event::new(e.x, e.y, e.t + 1_589_163_147_368_868, e.on))
+        .collect();
+    let mut w = Evt3Writer::new(Vec::new(), 1280, 720).unwrap();
+    w.write(&late).unwrap();
+    assert_eq!(w.origin(), Some(1_589_163_147_368_868 + events[0].t));
+    let d = decode(Dec::Evt3, &w.finish().unwrap()).unwrap();
+    assert_eq!(d.events[5].1.t, events[5].t - events[0].t);
+    // Refused: a pixel outside, a step back of more than 2,047 periods, a time before 0.
+    let bad = |e: &[Event]| write(e).unwrap_err().to_string();
+    assert!(bad(&[Event::new(1280, 0, 0, true)]).contains("outside"));
+    let back = [Event::new(0, 0, 9_000_000, true), Event::new(0, 0, 0, true)];
+    assert!(bad(&back).contains("go back"));
+    assert!(bad(&[Event::new(0, 0, 1 << 30, true), Event::new(0, 0, 0, true)]).contains("from"));
+    assert!(Evt3Writer::new(Vec::new(), 4096, 10).is_err());
+}
+
 /// The size a header without `% format` or `% geometry` implies through `% system_ID`, as
 /// OpenEB's `check_header` decides whose table applies.
 #[test]

@@ -88,11 +88,12 @@ pub struct InfoArgs {
 pub struct ConvertArgs {
     /// Recording to convert.
     pub file: PathBuf,
-    /// Output: `.npy` ((N, 4) float64 `[x, y, t_us, p]`, one camera) or `.aedat4` (one event
-    /// stream per camera, LZ4, readable by DV tools).
+    /// Output: `.npy` ((N, 4) float64 `[x, y, t_us, p]`, one camera), `.aedat4` (one event
+    /// stream per camera, LZ4, readable by DV tools) or `.raw` (Prophesee EVT 3.0, one camera,
+    /// readable by Metavision / OpenEB tools).
     #[arg(long)]
     pub out: PathBuf,
-    /// Camera to export (default: camera 0 for `.npy`, every camera for `.aedat4`).
+    /// Camera to export (default: camera 0 for `.npy` and `.raw`, every camera for `.aedat4`).
     #[arg(long)]
     pub camera: Option<u8>,
     /// How to read the recording.
@@ -311,8 +312,9 @@ fn convert(a: &ConvertArgs) -> Result<()> {
     let done = match ext.as_deref() {
         Some("npy") => convert::to_npy(&a.file, &opts, a.camera.unwrap_or(0), &a.out)?,
         Some("aedat4") => convert::to_aedat4(&a.file, &opts, a.camera, &a.out)?,
+        Some("raw") => convert::to_evt3(&a.file, &opts, a.camera.unwrap_or(0), &a.out)?,
         _ => bail!(
-            "{}: unknown output format; name the output .npy or .aedat4",
+            "{}: unknown output format; name the output .npy, .aedat4 or .raw (EVT 3.0)",
             a.out.display()
         ),
     };
@@ -328,10 +330,10 @@ fn convert(a: &ConvertArgs) -> Result<()> {
         done.events,
         ids.join(", "),
         a.out.display(),
-        if ext.as_deref() == Some("aedat4") {
-            " (AEDAT 4.0, LZ4; stream i holds the i-th of them)"
-        } else {
-            ""
+        match ext.as_deref() {
+            Some("aedat4") => " (AEDAT 4.0, LZ4; stream i holds the i-th of them)",
+            Some("raw") => " (Prophesee RAW, EVT 3.0)",
+            _ => "",
         }
     );
     Ok(())

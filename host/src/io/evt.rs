@@ -1,4 +1,5 @@
-//! Prophesee RAW files: EVT 2.0 and EVT 3.0 encodings.
+//! Prophesee RAW files: EVT 2.0 and EVT 3.0 encodings, read ([`EvtReader`]) and, in EVT 3.0,
+//! written ([`Evt3Writer`]).
 //!
 //! # Header
 //!
@@ -57,6 +58,7 @@ use std::io::Read;
 
 pub use evpose_core::evt::Encoding;
 use evpose_core::evt::{EvtDecoder, EvtError};
+use evpose_core::Event;
 
 use super::source::{out_of_sensor, parse_geometry, time_overflow, Source};
 use super::{text, Batch, CameraInfo, Format, ReadError, ReadNotes, StreamInfo, BATCH_EVENTS};
@@ -402,5 +404,142 @@ impl<R: Read> super::source::Fill for EvtReader<R> {
     }
     fn finished(&mut self) -> &mut bool {
         &mut self.finished
+    }
+}
+
+/// Time-high periods a time-high word may go back: less than half the 12-bit counter, so that
+/// a reader does not take the step for a wrap ([`Unwrapper`](evpose_core::evt::Unwrapper)).
+const WRITE_HIGH_STEP: i64 = 2047;
+
+/// Writes events as a Prophesee RAW file in EVT 3.0: a `%` header that states the size
+/// (`% format EVT3;height=H;width=W`, `% geometry`, `% end`), then per event the words that
+/// changed (time high, time low, row) and one `EVT_ADDR_X` word. The time high is written twice
+/// at the start (a reader then never takes a time-low step back for an unwritten period, see
+/// the module documentation) and once per period, through gaps too (as a sensor writes it:
+/// some readers take only the next period or the counter's wrap). EVT 3.0 carries 24 bits of time from 0: when the first event's time is
+/// 2^24 µs or more (a DV recording's Unix time), every time is written less the first's
+/// ([`Evt3Writer::origin`]); earlier times are kept as they are. A time before that origin, a
+/// step back of more than 2,047 periods (8.4 s) and a pixel outside the stated sensor cannot be
+/// written.
+pub struct Evt3Writer<W: std::io::Write> {
+    out: W,
+    size: (u16, u16),
+    origin: Option<i64>,
+    high: Option<i64>,
+    low: Option<i64>,
+    y: Option<u16>,
+    words: Vec<u8>,
+}
+
+impl<W: std::io::Write> Evt3Writer<W> {
+    /// Writes the header of a `width` × `height` sensor (at most 2,048 × 2,048: 11-bit
+    /// addresses).
+    pub fn new(mut out: W, width: u16, height: u16) -> std::io::Result<Self> {
+        if !(1..=2048).contains(&width) || !(1..=2048).contains(&height) {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!("EVT 3.0 holds sensors up to 2048 x 2048, not {width} x {height}"),
+            ));
+        }
+        write!(
+            out,
+            "% evt 3.0\n% format EVT3;height={height};width={width}\n% geometry {width}x{height}\n\
+             % integrator_name evpose\n% end\n"
+        )?;
+        Ok(Self {
+            out,
+            size: (width, height),
+            origin: None,
+            high: None,
+            low: None,
+            y: None,
+            words: Vec::with_capacity(1 << 16),
+        })
+    }
+
+    fn word(&mut self, ty: u16, payload: i64) {
+        let w = (ty << 12) | (payload & 0xFFF) as u16;
+        self.words.extend_from_slice(&w.to_le_bytes());
+    }
+
+    /// Appends `events` in their order.
+    pub fn write(&mut self, events: &[Event]) -> std::io::Result<()> {
+        let invalid = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, m);
+        for e in events {
+            let (w, h) = self.size;
+            if e.x >= w || e.y >= h {
+                return Err(invalid(format!(
+                    "event at x = {}, y = {} lies outside the {w}x{h} sensor",
+                    e.x, e.y
+                )));
+            }
+            let origin =
+                *self
+                    .origin
+                    .get_or_insert(if (0..1 << 24).contains(&e.t) { 0 } else { e.t });
+            let t = e.t.checked_sub(origin).filter(|t| (0..1 << 62).contains(t));
+            let Some(t) = t else {
+                return Err(invalid(format!(
+                    "timestamp {} µs: EVT 3.0 holds times from {origin} µs (the first event's, \
+                     or 0) to 2^62 µs after",
+                    e.t
+                )));
+            };
+            let (high, low) = (t >> 12, t & 0xFFF);
+            match self.high {
+                None => {
+                    self.word(0x8, high);
+                    self.word(0x8, high);
+                    self.low = None;
+                }
+                Some(mut at) if at != high => {
+                    if at - high > WRITE_HIGH_STEP {
+                        return Err(invalid(format!(
+                            "timestamp {} µs is more than {WRITE_HIGH_STEP} time-high periods \
+                             ({} µs) before the one before: EVT 3.0 cannot go back that far",
+                            e.t,
+                            WRITE_HIGH_STEP << 12
+                        )));
+                    }
+                    // Every period on the way, as a sensor writes them (faery's reader, for
+                    // one, takes only the next period or the counter's wrap).
+                    while high - at > 1 {
+                        at += 1;
+                        self.word(0x8, at);
+                    }
+                    self.word(0x8, high);
+                    self.low = None;
+                }
+                Some(_) => {}
+            }
+            self.high = Some(high);
+            if self.low != Some(low) {
+                self.word(0x6, low);
+                self.low = Some(low);
+            }
+            if self.y != Some(e.y) {
+                self.word(0x0, i64::from(e.y));
+                self.y = Some(e.y);
+            }
+            self.word(0x2, (i64::from(e.on) << 11) | i64::from(e.x));
+            if self.words.len() >= 1 << 16 {
+                self.out.write_all(&self.words)?;
+                self.words.clear();
+            }
+        }
+        Ok(())
+    }
+
+    /// The time (µs) subtracted from every event's: 0, or the first event's when it was 2^24 µs
+    /// or more; `None` before the first event.
+    pub fn origin(&self) -> Option<i64> {
+        self.origin
+    }
+
+    /// Writes what is buffered and hands the output back.
+    pub fn finish(mut self) -> std::io::Result<W> {
+        self.out.write_all(&self.words)?;
+        self.out.flush()?;
+        Ok(self.out)
     }
 }
