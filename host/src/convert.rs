@@ -121,6 +121,7 @@ pub fn to_evt3(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Resul
             file.display()
         );
     };
+    io::evt::Evt3Writer::<std::io::Sink>::check_size(width, height)?;
     let path = file;
     let file =
         std::fs::File::create(out).with_context(|| format!("cannot create {}", out.display()))?;
@@ -154,8 +155,8 @@ pub fn to_evt3(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Resul
     let mut assumptions = reader.notes().assumptions;
     if origin != 0 {
         assumptions.push(format!(
-            "times written from the first event's: {origin} µs subtracted (EVT 3.0 holds 24 \
-             bits of time from 0)"
+            "times written from {origin} µs, the 2^24-µs boundary before the first event's \
+             (EVT 3.0 holds 24 bits of time)"
         ));
     }
     Ok(Converted {

@@ -774,22 +774,43 @@ fn evt3_writer_round_trips() {
     assert_eq!(got, events);
     assert_eq!(d.notes.implied_time_highs, 0);
     assert_eq!(d.notes.timestamp_wraps, 2);
-    // A Unix-time recording is written from its first event.
-    let late: Vec<Event> = events
-        .iter()
-        .map(|e| Event::new(e.x, e.y, e.t + 1_589_163_147_368_868, e.on))
-        .collect();
+    // A Unix-time recording keeps its times' low 24 bits (from the 2^24-µs boundary before its
+    // first event), so an event a little before the first is written too.
+    let unix = 1_589_163_147_368_868;
+    let origin = unix - unix % (1 << 24);
+    let late: Vec<Event> = [
+        Event::new(1, 2, unix + 7, true),
+        Event::new(3, 4, unix, false),
+    ]
+    .into_iter()
+    .chain(
+        events
+            .iter()
+            .map(|e| Event::new(e.x, e.y, e.t + unix, e.on)),
+    )
+    .collect();
     let mut w = Evt3Writer::new(Vec::new(), 1280, 720).unwrap();
     w.write(&late).unwrap();
-    assert_eq!(w.origin(), Some(1_589_163_147_368_868 + events[0].t));
+    assert_eq!(w.origin(), Some(origin));
     let d = decode(Dec::Evt3, &w.finish().unwrap()).unwrap();
-    assert_eq!(d.events[5].1.t, events[5].t - events[0].t);
-    // Refused: a pixel outside, a step back of more than 2,047 periods, a time before 0.
+    let got: Vec<i64> = d.events.iter().map(|(_, e)| e.t + origin).collect();
+    let want: Vec<i64> = late.iter().map(|e| e.t).collect();
+    assert_eq!(got, want);
+    // Refused: a pixel outside, a step back of more than 2,047 periods or across a 2^24-µs
+    // boundary, a time before the origin, a gap of more than 2^24 periods.
     let bad = |e: &[Event]| write(e).unwrap_err().to_string();
     assert!(bad(&[Event::new(1280, 0, 0, true)]).contains("outside"));
     let back = [Event::new(0, 0, 9_000_000, true), Event::new(0, 0, 0, true)];
-    assert!(bad(&back).contains("go back"));
+    assert!(bad(&back).contains("goes back"));
+    let across = [
+        Event::new(0, 0, 0, true),
+        Event::new(0, 0, (1 << 24) + 100, true),
+        Event::new(0, 0, (1 << 24) - 9, true),
+    ];
+    assert!(bad(&across).contains("goes back"));
     assert!(bad(&[Event::new(0, 0, 1 << 30, true), Event::new(0, 0, 0, true)]).contains("from"));
+    let gap = [Event::new(0, 0, 0, true), Event::new(0, 0, 1 << 37, true)];
+    assert!(bad(&gap).contains("gaps over"));
     assert!(Evt3Writer::new(Vec::new(), 4096, 10).is_err());
 }
 

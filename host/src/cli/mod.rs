@@ -35,8 +35,9 @@ pub struct Cli {
 pub enum Command {
     /// Describe a recording: format, resolution, event counts, time span.
     Info(InfoArgs),
-    /// Convert a recording to an (N, 4) float64 `.npy` array [x, y, t_us, p] (one camera) or
-    /// to AEDAT 4 (`.aedat4`, every camera).
+    /// Convert a recording to an (N, 4) float64 `.npy` array [x, y, t_us, p] (one camera), to
+    /// AEDAT 4.0 (every camera; DV tools) or to a Prophesee RAW file in EVT 3.0 (`.raw`, one
+    /// camera; Metavision / OpenEB tools).
     Convert(ConvertArgs),
     /// Rasterize events into event point clouds [x, y, t_avg, p_acc, cnt] (float32 .npy).
     Raster(RasterArgs),

@@ -411,16 +411,25 @@ impl<R: Read> super::source::Fill for EvtReader<R> {
 /// a reader does not take the step for a wrap ([`Unwrapper`](evpose_core::evt::Unwrapper)).
 const WRITE_HIGH_STEP: i64 = 2047;
 
+/// The longest gap [`Evt3Writer`] writes, in 4,096-µs periods (one word each): 2^24 periods,
+/// about 19 hours and 32 MiB of words.
+const MAX_WRITE_GAP_PERIODS: i64 = 1 << 24;
+
 /// Writes events as a Prophesee RAW file in EVT 3.0: a `%` header that states the size
 /// (`% format EVT3;height=H;width=W`, `% geometry`, `% end`), then per event the words that
 /// changed (time high, time low, row) and one `EVT_ADDR_X` word. The time high is written twice
 /// at the start (a reader then never takes a time-low step back for an unwritten period, see
 /// the module documentation) and once per period, through gaps too (as a sensor writes it:
-/// some readers take only the next period or the counter's wrap). EVT 3.0 carries 24 bits of time from 0: when the first event's time is
-/// 2^24 µs or more (a DV recording's Unix time), every time is written less the first's
-/// ([`Evt3Writer::origin`]); earlier times are kept as they are. A time before that origin, a
-/// step back of more than 2,047 periods (8.4 s) and a pixel outside the stated sensor cannot be
-/// written.
+/// some readers take only the next period or the counter's wrap).
+///
+/// EVT 3.0 carries 24 bits of time from 0: every time is written less the 2^24-µs boundary at
+/// or before the first event's ([`Evt3Writer::origin`]: 0 for a recording that starts below
+/// 16.8 s; a DV recording's Unix times keep their low 24 bits). Refused: a time before that
+/// origin, a step back of more than 2,047 periods (8.4 s) or across a 2^24-µs boundary
+/// (readers that follow OpenEB take a time-high word below the one before as given, or as a
+/// wrap forward), a gap of more than 2^24 periods (19 hours: one word per period), and a pixel
+/// outside the stated sensor. Readers that keep time from going back (faery) read steps back
+/// differently.
 pub struct Evt3Writer<W: std::io::Write> {
     out: W,
     size: (u16, u16),
@@ -435,12 +444,7 @@ impl<W: std::io::Write> Evt3Writer<W> {
     /// Writes the header of a `width` × `height` sensor (at most 2,048 × 2,048: 11-bit
     /// addresses).
     pub fn new(mut out: W, width: u16, height: u16) -> std::io::Result<Self> {
-        if !(1..=2048).contains(&width) || !(1..=2048).contains(&height) {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::InvalidInput,
-                format!("EVT 3.0 holds sensors up to 2048 x 2048, not {width} x {height}"),
-            ));
-        }
+        Self::check_size(width, height)?;
         write!(
             out,
             "% evt 3.0\n% format EVT3;height={height};width={width}\n% geometry {width}x{height}\n\
@@ -455,6 +459,17 @@ impl<W: std::io::Write> Evt3Writer<W> {
             y: None,
             words: Vec::with_capacity(1 << 16),
         })
+    }
+
+    /// Whether EVT 3.0 holds a `width` × `height` sensor (11-bit addresses: up to 2,048).
+    pub fn check_size(width: u16, height: u16) -> std::io::Result<()> {
+        if !(1..=2048).contains(&width) || !(1..=2048).contains(&height) {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!("EVT 3.0 holds sensors up to 2048 x 2048, not {width} x {height}"),
+            ));
+        }
+        Ok(())
     }
 
     fn word(&mut self, ty: u16, payload: i64) {
@@ -473,10 +488,9 @@ impl<W: std::io::Write> Evt3Writer<W> {
                     e.x, e.y
                 )));
             }
-            let origin =
-                *self
-                    .origin
-                    .get_or_insert(if (0..1 << 24).contains(&e.t) { 0 } else { e.t });
+            // The 2^24-µs boundary at or before the first event: times keep their low 24 bits,
+            // as a sensor's EVT 3.0 would hold them.
+            let origin = *self.origin.get_or_insert(e.t - e.t.rem_euclid(1 << 24));
             let t = e.t.checked_sub(origin).filter(|t| (0..1 << 62).contains(t));
             let Some(t) = t else {
                 return Err(invalid(format!(
@@ -493,12 +507,24 @@ impl<W: std::io::Write> Evt3Writer<W> {
                     self.low = None;
                 }
                 Some(mut at) if at != high => {
-                    if at - high > WRITE_HIGH_STEP {
+                    // Back: within 2,047 periods and the same 2^24-µs span (a reader that
+                    // follows OpenEB takes a time-high word below the one before as a wrap
+                    // only forward).
+                    if high < at && (at - high > WRITE_HIGH_STEP || high >> 12 != at >> 12) {
                         return Err(invalid(format!(
-                            "timestamp {} µs is more than {WRITE_HIGH_STEP} time-high periods \
-                             ({} µs) before the one before: EVT 3.0 cannot go back that far",
+                            "timestamp {} µs goes back past the 2^24-µs boundary of the time \
+                             before, or more than {WRITE_HIGH_STEP} time-high periods: EVT 3.0 \
+                             cannot hold that",
+                            e.t
+                        )));
+                    }
+                    if high - at > MAX_WRITE_GAP_PERIODS {
+                        return Err(invalid(format!(
+                            "timestamp {} µs comes {} s after the one before: EVT 3.0 writes a \
+                             time-high word per 4,096 µs, and gaps over {} s are refused",
                             e.t,
-                            WRITE_HIGH_STEP << 12
+                            ((high - at) << 12) / 1_000_000,
+                            (MAX_WRITE_GAP_PERIODS << 12) / 1_000_000
                         )));
                     }
                     // Every period on the way, as a sensor writes them (faery's reader, for
@@ -506,6 +532,10 @@ impl<W: std::io::Write> Evt3Writer<W> {
                     while high - at > 1 {
                         at += 1;
                         self.word(0x8, at);
+                        if self.words.len() >= 1 << 16 {
+                            self.out.write_all(&self.words)?;
+                            self.words.clear();
+                        }
                     }
                     self.word(0x8, high);
                     self.low = None;
@@ -530,8 +560,8 @@ impl<W: std::io::Write> Evt3Writer<W> {
         Ok(())
     }
 
-    /// The time (µs) subtracted from every event's: 0, or the first event's when it was 2^24 µs
-    /// or more; `None` before the first event.
+    /// The time (µs) subtracted from every event's: the 2^24-µs boundary at or before the first
+    /// event's; `None` before the first event.
     pub fn origin(&self) -> Option<i64> {
         self.origin
     }
