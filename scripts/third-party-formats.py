@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
-"""evpose's readers and AEDAT 4 writer against independent engines: expelliarmus (C; EVT 2.0,
+"""evpose's readers and its AEDAT 4 and EVT 3.0 writers against independent engines: expelliarmus (C; EVT 2.0,
 EVT 3.0, DAT), faery (Rust; EVT 2.0, EVT 3.0, DAT 1 and 2, AEDAT 4, CSV, Event Stream) and
 aedat (Rust; AEDAT 4).
 
 1. Each engine writes the street recording's events (`../shared/recordings/davis346-street.aedat4`,
-   read by `evpose convert`, times from 0) in every format it writes; `evpose convert` reads each
-   file back; the events must equal the ones written, exactly.
+   read by `evpose convert`, times from 0), 64 events over 40 s on 1280 x 720, rows of same-time
+   events, and the street events inside 304 x 240 (DAT version 1) in every format it writes;
+   `evpose convert` reads each file back; the events must equal the ones written, exactly.
 2. The engines read evpose's AEDAT 4 (the street events, and the bundled four-camera clip), its
    EVT 3.0 (`convert --out F.raw`: faery exactly, expelliarmus in x, y and polarity) and the
    spec-built fixtures in host/tests/fixtures/formats; they must read what evpose reads.
@@ -25,7 +26,7 @@ aedat (Rust; AEDAT 4).
 usage: python3 -m venv /tmp/tp && /tmp/tp/bin/pip install expelliarmus==1.1.12 faery==0.7.1 \\
            aedat==2.3.0
        /tmp/tp/bin/python scripts/third-party-formats.py [--evpose target/release/evpose] \\
-           [--real DIR] [--write-fixtures DIR]
+           [--real DIR] [--write-fixtures DIR] [--firmware-asset PATH]
 Exit status 1 when any comparison fails.
 """
 import argparse
@@ -157,7 +158,7 @@ def main():
                                    ("rows", rows, (1280, 720)), ("atis", atis, (304, 240))]:
             for name, path in write_all(events, size, d, stem):
                 if stem == "sparse" and name == "expelliarmus evt3":
-                    continue  # one time-high word per file: gaps over 2,048 us are ambiguous
+                    continue  # one time-high word per file: gaps of 2,048 us or more are lost
                 got, why = evpose_read(a.evpose, path, "--width", str(size[0]),
                                        "--height", str(size[1]))
                 compare(f"{stem}: {name} -> evpose", got, events, why)

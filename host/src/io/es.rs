@@ -25,8 +25,9 @@
 //! every other format here.
 //! # Damage
 //!
-//! A version other than 2, another stream type, a zero sensor size, a pixel outside the
-//! sensor and a file that ends inside an event are errors naming the byte offset.
+//! A version other than 2 and another stream type are `Unsupported` errors; a zero sensor
+//! size, a pixel outside the sensor and a file that ends inside an event are errors naming
+//! the byte offset.
 
 use std::io::Read;
 
