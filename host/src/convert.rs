@@ -69,24 +69,22 @@ pub fn to_npy(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Result
         .read_batch(&mut batch)
         .with_context(|| format!("{}", path.display()))?
     {
-        for (e, &cam) in batch.events.iter().zip(&batch.cameras) {
-            if cam == camera {
-                if e.t.unsigned_abs() > EXACT_IN_F64 as u64 {
-                    bail!(
-                        "{}: timestamp {} µs does not fit a float64 exactly (beyond 2^53): \
-                         nanoseconds read as µs? (--time-unit)",
-                        path.display(),
-                        e.t
-                    );
-                }
-                w.extend([
-                    f64::from(e.x),
-                    f64::from(e.y),
-                    e.t as f64,
-                    f64::from(u8::from(e.on)),
-                ])?;
-                written += 1;
+        for e in batch.of_camera(camera) {
+            if e.t.unsigned_abs() > EXACT_IN_F64 as u64 {
+                bail!(
+                    "{}: timestamp {} µs does not fit a float64 exactly (beyond 2^53): \
+                     nanoseconds read as µs? (--time-unit)",
+                    path.display(),
+                    e.t
+                );
             }
+            w.extend([
+                f64::from(e.x),
+                f64::from(e.y),
+                e.t as f64,
+                f64::from(u8::from(e.on)),
+            ])?;
+            written += 1;
         }
     }
     if written != n {
@@ -121,7 +119,7 @@ pub fn to_evt3(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Resul
             file.display()
         );
     };
-    io::evt::Evt3Writer::<std::io::Sink>::check_size(width, height)?;
+    io::evt::check_evt3_size(width, height)?;
     let path = file;
     let file =
         std::fs::File::create(out).with_context(|| format!("cannot create {}", out.display()))?;
@@ -134,14 +132,7 @@ pub fn to_evt3(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Resul
         .with_context(|| format!("{}", path.display()))?
     {
         picked.clear();
-        picked.extend(
-            batch
-                .events
-                .iter()
-                .zip(&batch.cameras)
-                .filter(|&(_, &c)| c == camera)
-                .map(|(e, _)| *e),
-        );
+        picked.extend(batch.of_camera(camera));
         w.write(&picked)
             .with_context(|| format!("cannot write {}", out.display()))?;
         written += picked.len() as u64;
@@ -225,10 +216,8 @@ pub fn to_aedat4(
             None => &batch,
             Some(want) => {
                 picked.clear();
-                for (e, &cam) in batch.events.iter().zip(&batch.cameras) {
-                    if cam == want {
-                        picked.push(cam, *e);
-                    }
+                for e in batch.of_camera(want) {
+                    picked.push(want, e);
                 }
                 &picked
             }

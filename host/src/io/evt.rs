@@ -13,8 +13,7 @@
 //! cameras written before those lines existed, from `% system_ID` through OpenEB's table
 //! (Gen3.0 and Gen3.1: 640 × 480; Gen4.0, Gen4.1 and IMX636: 1280 × 720) unless
 //! `--width/--height` give one (expelliarmus writes a fixed header, `system_ID` 21 or 48,
-//! whatever the events' sensor); else from `--width/--height`. In EVT 3.0 a time-high word that changes the period sets the time low
-//! to 0 (OpenEB's decoder does the same).
+//! whatever the events' sensor); else from `--width/--height`.
 //!
 //! # EVT 2.0
 //!
@@ -41,15 +40,18 @@
 //!
 //! # Damage and recovery
 //!
-//! The time counters wrap (EVT 2.0 after 2³⁴ µs, EVT 3.0 after 2²⁴ µs ≈ 16.8 s): a time-high
-//! word more than half the range below the previous one is a wrap, counted in
-//! [`ReadNotes::timestamp_wraps`]. In an EVT 3.0 file that has given one time-high word so
-//! far, a time-low word more than half its range (2,048 µs) below the previous one, with no
-//! time-high word between them, starts the next time-high period: a conforming stream gives a
-//! time-high word every period, but expelliarmus (a Python reader and writer) writes one per
-//! file and lets the time low wrap; these are counted in [`ReadNotes::implied_time_highs`].
-//! Once a second time-high word came, time lows are taken as given (as OpenEB does). Events before the first time-high word (or, in EVT 3.0,
-//! before the first y address) have no time base and are dropped and counted in
+//! The words are decoded by the core's [`EvtDecoder`] (`evpose_core::evt`, the decoder a
+//! microcontroller runs), whose documentation is the reference; in short: the time counters
+//! wrap (EVT 2.0 after 2³⁴ µs, EVT 3.0 after 2²⁴ µs ≈ 16.8 s): a time-high word more than half
+//! the range below the previous one is a wrap, counted in [`ReadNotes::timestamp_wraps`]. In an
+//! EVT 3.0 file that has given one time-high word so far, a time-low word more than half its
+//! range (2,048 µs) below the previous one, with no time-high word between them, starts the
+//! next time-high period: a conforming stream gives a time-high word every period, but
+//! expelliarmus (a Python reader and writer) writes one per file and lets the time low wrap;
+//! these are counted in [`ReadNotes::implied_time_highs`]. Once a second time-high word came,
+//! time lows are taken as given, and a time-high word that changes the period sets the time low
+//! to 0 (as OpenEB does). Events before the first time-high word (or, in EVT 3.0, before the
+//! first y address) have no time base and are dropped and counted in
 //! [`ReadNotes::dropped_events`], as OpenEB does. Reserved word types, pixels outside a known
 //! sensor (or x beyond 65535) and a file that ends inside a word are errors naming the word's
 //! offset.
@@ -279,15 +281,16 @@ impl<R: Read> EvtReader<R> {
             }
         };
         let from_id = header.system_id_size().filter(|_| size.is_none());
-        let size = match (header.size(), from_id) {
-            (Some(s), _) => Some(s),
+        // The size, and whether it is `% system_ID`'s guess.
+        let (size, size_from_id) = match (header.size(), from_id) {
+            (Some(s), _) => (Some(s), false),
             (None, Some(((w, h), sensor))) => {
                 notes.assumptions.push(format!(
                     "sensor size {w}x{h} from `% system_ID {}` (a {sensor} camera, as OpenEB \
                      reads a header without a size; --width/--height override it)",
                     header.get("system_id").unwrap_or_default()
                 ));
-                Some((w, h))
+                (Some((w, h)), true)
             }
             (None, None) => {
                 if let Some((w, h)) = size {
@@ -295,7 +298,7 @@ impl<R: Read> EvtReader<R> {
                         .assumptions
                         .push(format!("sensor size {w}x{h} from --width/--height"));
                 }
-                size
+                (size, false)
             }
         };
         Ok(Self {
@@ -311,7 +314,7 @@ impl<R: Read> EvtReader<R> {
                 event_count: None,
             },
             decoder: EvtDecoder::new(encoding, size),
-            size_from_id: header.size().is_none() && from_id.is_some(),
+            size_from_id,
             notes,
             finished: false,
         })
@@ -407,6 +410,18 @@ impl<R: Read> super::source::Fill for EvtReader<R> {
     }
 }
 
+/// Whether EVT 3.0 holds a `width` × `height` sensor (11-bit addresses: up to 2,048), as
+/// [`Evt3Writer::new`] checks before it writes anything.
+pub fn check_evt3_size(width: u16, height: u16) -> std::io::Result<()> {
+    if !(1..=2048).contains(&width) || !(1..=2048).contains(&height) {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("EVT 3.0 holds sensors up to 2048 x 2048, not {width} x {height}"),
+        ));
+    }
+    Ok(())
+}
+
 /// Time-high periods a time-high word may go back: less than half the 12-bit counter, so that
 /// a reader does not take the step for a wrap ([`Unwrapper`](evpose_core::evt::Unwrapper)).
 const WRITE_HIGH_STEP: i64 = 2047;
@@ -444,7 +459,7 @@ impl<W: std::io::Write> Evt3Writer<W> {
     /// Writes the header of a `width` × `height` sensor (at most 2,048 × 2,048: 11-bit
     /// addresses).
     pub fn new(mut out: W, width: u16, height: u16) -> std::io::Result<Self> {
-        Self::check_size(width, height)?;
+        check_evt3_size(width, height)?;
         write!(
             out,
             "% evt 3.0\n% format EVT3;height={height};width={width}\n% geometry {width}x{height}\n\
@@ -461,20 +476,15 @@ impl<W: std::io::Write> Evt3Writer<W> {
         })
     }
 
-    /// Whether EVT 3.0 holds a `width` × `height` sensor (11-bit addresses: up to 2,048).
-    pub fn check_size(width: u16, height: u16) -> std::io::Result<()> {
-        if !(1..=2048).contains(&width) || !(1..=2048).contains(&height) {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::InvalidInput,
-                format!("EVT 3.0 holds sensors up to 2048 x 2048, not {width} x {height}"),
-            ));
-        }
-        Ok(())
-    }
-
-    fn word(&mut self, ty: u16, payload: i64) {
+    /// Appends a word of type `ty` (its payload's low 12 bits); writes the buffer out when full.
+    fn word(&mut self, ty: u16, payload: i64) -> std::io::Result<()> {
         let w = (ty << 12) | (payload & 0xFFF) as u16;
         self.words.extend_from_slice(&w.to_le_bytes());
+        if self.words.len() >= 1 << 16 {
+            self.out.write_all(&self.words)?;
+            self.words.clear();
+        }
+        Ok(())
     }
 
     /// Appends `events` in their order.
@@ -502,8 +512,8 @@ impl<W: std::io::Write> Evt3Writer<W> {
             let (high, low) = (t >> 12, t & 0xFFF);
             match self.high {
                 None => {
-                    self.word(0x8, high);
-                    self.word(0x8, high);
+                    self.word(0x8, high)?;
+                    self.word(0x8, high)?;
                     self.low = None;
                 }
                 Some(mut at) if at != high => {
@@ -531,31 +541,23 @@ impl<W: std::io::Write> Evt3Writer<W> {
                     // one, takes only the next period or the counter's wrap).
                     while high - at > 1 {
                         at += 1;
-                        self.word(0x8, at);
-                        if self.words.len() >= 1 << 16 {
-                            self.out.write_all(&self.words)?;
-                            self.words.clear();
-                        }
+                        self.word(0x8, at)?;
                     }
-                    self.word(0x8, high);
+                    self.word(0x8, high)?;
                     self.low = None;
                 }
                 Some(_) => {}
             }
             self.high = Some(high);
             if self.low != Some(low) {
-                self.word(0x6, low);
+                self.word(0x6, low)?;
                 self.low = Some(low);
             }
             if self.y != Some(e.y) {
-                self.word(0x0, i64::from(e.y));
+                self.word(0x0, i64::from(e.y))?;
                 self.y = Some(e.y);
             }
-            self.word(0x2, (i64::from(e.on) << 11) | i64::from(e.x));
-            if self.words.len() >= 1 << 16 {
-                self.out.write_all(&self.words)?;
-                self.words.clear();
-            }
+            self.word(0x2, (i64::from(e.on) << 11) | i64::from(e.x))?;
         }
         Ok(())
     }

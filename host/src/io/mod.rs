@@ -72,6 +72,15 @@ impl Batch {
     pub fn is_empty(&self) -> bool {
         self.events.is_empty()
     }
+
+    /// The events of `camera`, in order.
+    pub fn of_camera(&self, camera: u8) -> impl Iterator<Item = Event> + '_ {
+        self.events
+            .iter()
+            .zip(&self.cameras)
+            .filter(move |&(_, &c)| c == camera)
+            .map(|(e, _)| *e)
+    }
 }
 
 /// File formats the readers understand.
@@ -509,14 +518,7 @@ pub fn read_camera(reader: &mut dyn EventReader, camera: u8) -> Result<Vec<Event
     let mut batch = Batch::default();
     let mut events = Vec::new();
     while reader.read_batch(&mut batch)? {
-        events.extend(
-            batch
-                .events
-                .iter()
-                .zip(&batch.cameras)
-                .filter(|(_, &c)| c == camera)
-                .map(|(e, _)| *e),
-        );
+        events.extend(batch.of_camera(camera));
     }
     Ok(events)
 }
