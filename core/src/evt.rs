@@ -310,7 +310,7 @@ impl EvtDecoder {
     ) -> Result<Progress, EvtError> {
         let mut events = 0;
         for (i, b) in bytes.chunks_exact(4).enumerate() {
-            if events >= room {
+            if events + Encoding::Evt2.max_events_per_word() > room {
                 return Ok(Progress {
                     bytes: i * 4,
                     events,
@@ -357,7 +357,7 @@ impl EvtDecoder {
     ) -> Result<Progress, EvtError> {
         let mut events = 0;
         for (i, b) in bytes.chunks_exact(2).enumerate() {
-            if events + 12 > room {
+            if events + Encoding::Evt3.max_events_per_word() > room {
                 return Ok(Progress {
                     bytes: i * 2,
                     events,

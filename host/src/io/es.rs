@@ -151,8 +151,9 @@ impl<R: Read> EsReader<R> {
             }
             let base = self.src.offset();
             let used = self.decode(base, have, batch)?;
-            if used == 0 && batch.len() < BATCH_EVENTS {
-                // Fewer bytes than an event, and no more to come.
+            if used == 0 {
+                // Fewer bytes than an event, and no more to come (with five or more, an event
+                // or an overflow byte is always used).
                 return Err(ReadError::Truncated {
                     offset: base,
                     what: "an Event Stream event",
