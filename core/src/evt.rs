@@ -211,7 +211,9 @@ pub struct EvtDecoder {
     high_counter: Unwrapper,
     /// EVT 3.0: time low, row, vector base and polarity.
     low: i64,
-    /// EVT 3.0: a time-low word came since the last time-high word.
+    /// EVT 3.0: a time-low word came since the last time-high word. Read only while the
+    /// stream gave exactly one time-high word, and kept only then (the common path does not
+    /// set it).
     low_seen: bool,
     /// EVT 3.0: time-high words so far.
     high_words: u64,
@@ -289,16 +291,18 @@ impl EvtDecoder {
     #[inline]
     fn check(&self, at: usize, x: u32, y: u32) -> Result<(), EvtError> {
         match self.size {
-            Some((w, h)) if x >= u32::from(w) || y >= u32::from(h) => {
-                Err(EvtError::OutsideSensor {
-                    at,
-                    x,
-                    y,
-                    size: (w, h),
-                })
-            }
-            None if x > u32::from(u16::MAX) => Err(EvtError::WideX { at, x }),
+            Some((w, h)) if x >= u32::from(w) || y >= u32::from(h) => Err(self.outside(at, x, y)),
+            None if x > u32::from(u16::MAX) => Err(self.outside(at, x, y)),
             _ => Ok(()),
+        }
+    }
+
+    /// The error of an event at `(x, y)` that failed [`EvtDecoder::check`].
+    #[cold]
+    fn outside(&self, at: usize, x: u32, y: u32) -> EvtError {
+        match self.size {
+            Some(size) => EvtError::OutsideSensor { at, x, y, size },
+            None => EvtError::WideX { at, x },
         }
     }
 
@@ -349,127 +353,237 @@ impl EvtDecoder {
         })
     }
 
+    /// EVT 3.0 words, on [`Evt3Fast`] (the state in locals). An inner loop takes the words of
+    /// a sparse stream (rows, time lows, single events of a known row and time inside the
+    /// sensor) with few live values; the outer loop takes vector bases and vectors, and hands
+    /// every other case to [`EvtDecoder::word3`] with the state written back first and read
+    /// again after. No such case gives an event, so `emit` is never handed on and stays in
+    /// registers.
     fn evt3(
         &mut self,
         bytes: &[u8],
         room: usize,
         mut emit: impl FnMut(Event),
     ) -> Result<Progress, EvtError> {
+        // A word gives at most 12 events: one is taken while `events ≤ last`.
+        let Some(last) = room.checked_sub(Encoding::Evt3.max_events_per_word()) else {
+            return Ok(Progress {
+                bytes: 0,
+                events: 0,
+            });
+        };
         let mut events = 0;
-        for (i, b) in bytes.chunks_exact(2).enumerate() {
-            if events + Encoding::Evt3.max_events_per_word() > room {
+        let mut s = Evt3Fast::load(self);
+        let mut rest = bytes;
+        // `events > last` changes only where an event is written: tested here, and after each
+        // event of the inner loop (which then comes back here).
+        'words: loop {
+            if events > last {
+                s.store(self);
                 return Ok(Progress {
-                    bytes: i * 2,
+                    bytes: bytes.len() - rest.len(),
                     events,
                 });
             }
-            let at = i * 2;
-            let w = u16::from_le_bytes([b[0], b[1]]);
-            match w >> 12 {
-                0x0 => self.y = Some(w & 0x7FF),
-                0x2 => {
-                    let x = u32::from(w & 0x7FF);
-                    let on = w & 0x800 != 0;
-                    events += self.emit3(at, x, on, 1, &mut emit)?;
+            while let [b0, b1, tail @ ..] = rest {
+                let w = u16::from_le_bytes([*b0, *b1]);
+                match w >> 12 {
+                    0x2 if u32::from(w & 0x7FF) < s.width && s.row < s.height => {
+                        let x = w & 0x7FF;
+                        emit(Event::new(x, s.row as u16, s.t, w & 0x800 != 0));
+                        events += 1;
+                        if events > last {
+                            rest = tail;
+                            continue 'words;
+                        }
+                    }
+                    0x0 => s.row = u32::from(w & 0x7FF) | s.no_high,
+                    // With exactly one time-high word so far a time low may imply the next
+                    // period: `word3` tells.
+                    0x6 if !s.one_high => s.t = (s.t & !0xFFF) | i64::from(w & 0xFFF),
+                    _ => break,
                 }
+                rest = tail;
+            }
+            let [b0, b1, tail @ ..] = rest else {
+                break;
+            };
+            let at = bytes.len() - rest.len();
+            let w = u16::from_le_bytes([*b0, *b1]);
+            let ty = w >> 12;
+            match ty {
                 0x3 => {
-                    self.base_x = u32::from(w & 0x7FF);
-                    self.on = w & 0x800 != 0;
+                    s.base_x = u32::from(w & 0x7FF);
+                    s.on = w & 0x800 != 0;
                 }
-                0x4 => events += self.vector(at, u32::from(w & 0xFFF), 12, &mut emit)?,
-                0x5 => events += self.vector(at, u32::from(w & 0xFF), 8, &mut emit)?,
-                0x6 => {
-                    let low = i64::from(w & 0xFFF);
-                    // Time low back by more than half its range with no time-high word since
-                    // the last time low, in a stream that gave one time-high word so far: its
-                    // counter wrapped into the next period.
-                    let wrapped = self.low_seen && self.high_words == 1 && low + 0x800 < self.low;
-                    if let (true, Some(high)) = (wrapped, self.high) {
-                        self.high = Some(
-                            self.high_counter
-                                .unwrap(((high + 1) & 0xFFF) as u64)
-                                .filter(|&h| h < 1 << 50)
-                                .ok_or(EvtError::TimeOverflow { at })?,
-                        );
-                        self.counts.timestamp_wraps = self.high_counter.wraps();
-                        self.counts.implied_time_highs += 1;
+                0x4 | 0x5 if s.row < s.height => {
+                    let (mut mask, width) = if ty == 0x4 {
+                        (u32::from(w & 0xFFF), 12)
+                    } else {
+                        (u32::from(w & 0xFF), 8)
+                    };
+                    let base_x = s.base_x;
+                    // Capped far above any sensor: `base_x + bit` cannot overflow.
+                    s.base_x = (base_x + width).min(1 << 24);
+                    while mask != 0 {
+                        let x = base_x + mask.trailing_zeros();
+                        mask &= mask - 1;
+                        if x >= s.width {
+                            s.store(self);
+                            return Err(self.outside(at, x, s.row));
+                        }
+                        emit(Event::new(x as u16, s.row as u16, s.t, s.on));
+                        events += 1;
                     }
-                    self.low = low;
-                    self.low_seen = true;
                 }
-                0x8 => {
-                    let high = self
-                        .high_counter
-                        .unwrap(u64::from(w & 0xFFF))
-                        .filter(|&h| h < 1 << 50)
-                        .ok_or(EvtError::TimeOverflow { at })?;
-                    // A new time-high period starts at time low 0 (as OpenEB decodes it).
-                    if self.high != Some(high) {
-                        self.low = 0;
-                    }
-                    self.high = Some(high);
-                    self.high_words += 1;
-                    self.low_seen = false;
-                    self.counts.timestamp_wraps = self.high_counter.wraps();
-                }
-                0x7 | 0xA | 0xE | 0xF => self.counts.skipped_words += 1,
                 _ => {
-                    return Err(EvtError::ReservedType {
-                        at,
-                        word: u32::from(w),
-                    })
+                    s.store(self);
+                    self.word3(at, w)?;
+                    s = Evt3Fast::load(self);
                 }
             }
+            rest = tail;
         }
+        s.store(self);
         Ok(Progress {
             bytes: bytes.len() / 2 * 2,
             events,
         })
     }
 
-    /// Events of a VECT_12 / VECT_8 word; moves the base x on by `width`.
-    fn vector(
-        &mut self,
-        at: usize,
-        mut mask: u32,
-        width: u32,
-        emit: &mut impl FnMut(Event),
-    ) -> Result<usize, EvtError> {
-        let base_x = self.base_x;
-        let on = self.on;
-        // Capped far above any sensor (x is checked below): `base_x + bit` cannot overflow.
-        self.base_x = (base_x + width).min(1 << 24);
-        if self.high.is_none() || self.y.is_none() {
-            self.counts.dropped_events += u64::from(mask.count_ones());
-            return Ok(0);
+    /// An EVT 3.0 word outside [`EvtDecoder::evt3`]'s common case, at byte `at`: an event
+    /// (single or vector) of an unknown row or time, which is dropped, or outside the sensor,
+    /// an error; a time low that wrapped; a time-high, skipped or reserved word. Gives no event.
+    #[inline(never)]
+    fn word3(&mut self, at: usize, w: u16) -> Result<(), EvtError> {
+        let ty = w >> 12;
+        match ty {
+            0x0 => self.y = Some(w & 0x7FF),
+            0x2 | 0x4 | 0x5 => {
+                let (mask, x) = match ty {
+                    0x2 => (1, u32::from(w & 0x7FF)),
+                    _ => {
+                        let (mask, width) = if ty == 0x4 {
+                            (u32::from(w & 0xFFF), 12)
+                        } else {
+                            (u32::from(w & 0xFF), 8)
+                        };
+                        let base_x = self.base_x;
+                        self.base_x = (base_x + width).min(1 << 24);
+                        (mask, base_x + mask.trailing_zeros())
+                    }
+                };
+                match (self.high, self.y) {
+                    // `evt3` takes every event of a known row and time inside the sensor: one
+                    // here lies outside it (`x` is the vector's first).
+                    (Some(_), Some(y)) if mask != 0 => {
+                        return Err(self.outside(at, x, u32::from(y)));
+                    }
+                    (Some(_), Some(_)) => {}
+                    _ => self.counts.dropped_events += u64::from(mask.count_ones()),
+                }
+            }
+            0x3 => {
+                self.base_x = u32::from(w & 0x7FF);
+                self.on = w & 0x800 != 0;
+            }
+            0x6 => {
+                let low = i64::from(w & 0xFFF);
+                // Time low back by more than half its range with no time-high word since
+                // the last time low, in a stream that gave one time-high word so far: its
+                // counter wrapped into the next period.
+                let wrapped = self.low_seen && self.high_words == 1 && low + 0x800 < self.low;
+                if let (true, Some(high)) = (wrapped, self.high) {
+                    self.high = Some(
+                        self.high_counter
+                            .unwrap(((high + 1) & 0xFFF) as u64)
+                            .filter(|&h| h < 1 << 50)
+                            .ok_or(EvtError::TimeOverflow { at })?,
+                    );
+                    self.counts.timestamp_wraps = self.high_counter.wraps();
+                    self.counts.implied_time_highs += 1;
+                }
+                self.low = low;
+                self.low_seen = true;
+            }
+            0x8 => {
+                let high = self
+                    .high_counter
+                    .unwrap(u64::from(w & 0xFFF))
+                    .filter(|&h| h < 1 << 50)
+                    .ok_or(EvtError::TimeOverflow { at })?;
+                // A new time-high period starts at time low 0 (as OpenEB decodes it).
+                if self.high != Some(high) {
+                    self.low = 0;
+                }
+                self.high = Some(high);
+                self.high_words += 1;
+                self.low_seen = false;
+                self.counts.timestamp_wraps = self.high_counter.wraps();
+            }
+            0x7 | 0xA | 0xE | 0xF => self.counts.skipped_words += 1,
+            _ => {
+                return Err(EvtError::ReservedType {
+                    at,
+                    word: u32::from(w),
+                })
+            }
         }
-        let mut n = 0;
-        while mask != 0 {
-            let bit = mask.trailing_zeros();
-            mask &= mask - 1;
-            n += self.emit3(at, base_x + bit, on, 0, emit)?;
+        Ok(())
+    }
+}
+
+/// An EVT 3.0 decoder's state in the form its common words need (locals of
+/// [`EvtDecoder::evt3`]'s loop): the readiness and sensor tests of an event folded into two
+/// compares, the event time kept whole.
+struct Evt3Fast {
+    /// The row; [`Evt3Fast::NO_HIGH`] set while no time-high word came; `u32::MAX` before the
+    /// first row. An event is in the common case when `row < height`.
+    row: u32,
+    /// `NO_HIGH` until a time-high word came, then 0.
+    no_high: u32,
+    /// `high << 12 | low` (the low 12 bits alone before the first time-high word).
+    t: i64,
+    /// Whether the stream gave exactly one time-high word so far (its time lows take
+    /// [`EvtDecoder::word3`]).
+    one_high: bool,
+    base_x: u32,
+    on: bool,
+    /// The sensor's size; without one, the widest x and y the checks take, plus one.
+    width: u32,
+    height: u32,
+}
+
+impl Evt3Fast {
+    /// Above every row: a row with this bit is never below the height.
+    const NO_HIGH: u32 = 1 << 31;
+
+    #[inline(always)]
+    fn load(d: &EvtDecoder) -> Self {
+        let no_high = if d.high.is_some() { 0 } else { Self::NO_HIGH };
+        let one_high = d.high.is_some() && d.high_words == 1;
+        let (width, height) = match d.size {
+            Some((w, h)) => (u32::from(w), u32::from(h)),
+            // `check`: without a size, an x up to 16 bits and any 11-bit row.
+            None => (1 << 16, 1 << 11),
+        };
+        Self {
+            row: d.y.map_or(u32::MAX, |y| u32::from(y) | no_high),
+            no_high,
+            t: (d.high.unwrap_or(0) << 12) | d.low,
+            one_high,
+            base_x: d.base_x,
+            on: d.on,
+            width,
+            height,
         }
-        Ok(n)
     }
 
-    /// One EVT 3.0 event at `x` in the current row; `count_drop` is what to count as dropped
-    /// when the time base or row is not known yet (vectors count their own). Returns the
-    /// events written (0 or 1).
-    #[inline]
-    fn emit3(
-        &mut self,
-        at: usize,
-        x: u32,
-        on: bool,
-        count_drop: u64,
-        emit: &mut impl FnMut(Event),
-    ) -> Result<usize, EvtError> {
-        let (Some(high), Some(y)) = (self.high, self.y) else {
-            self.counts.dropped_events += count_drop;
-            return Ok(0);
-        };
-        self.check(at, x, u32::from(y))?;
-        emit(Event::new(x as u16, y, (high << 12) | self.low, on));
-        Ok(1)
+    #[inline(always)]
+    fn store(&self, d: &mut EvtDecoder) {
+        d.y = (self.row != u32::MAX).then_some((self.row & 0x7FF) as u16);
+        d.low = self.t & 0xFFF;
+        d.base_x = self.base_x;
+        d.on = self.on;
     }
 }
