@@ -1,4 +1,4 @@
-//! Prophesee sensor words: EVT 2.0 and EVT 3.0 event streams decoded into [`Event`]s.
+//! Prophesee sensor words: EVT 2.0, EVT 2.1 and EVT 3.0 event streams decoded into [`Event`]s.
 //!
 //! Prophesee's sensors (the GenX320 beside a microcontroller, the IMX636 in the EVKs) stream
 //! events in these encodings, and their RAW files store them after a text header. A decoder
@@ -11,14 +11,24 @@
 //! EVT 2.0: u32 words, type in bits 28–31: `0x0`/`0x1` CD OFF/ON (t low 6 bits in 22–27, x in
 //! 11–21, y in 0–10), `0x8` time high (bits 0–27 = t >> 6), `0xA`/`0xE`/`0xF` skipped.
 //!
+//! EVT 2.1 (the GenX320's default, the IMX636's other encoding beside EVT 3.0): u64 words,
+//! type in bits 60–63; bits 32–63 are laid out as an EVT 2.0 word (CD OFF/ON with the time
+//! low, x and y; time high; skipped types) and bits 0–31 of an event word are a mask: bit `i`
+//! set, an event at x + i (lowest bit first; x need not be a multiple of 32). A GenX320 sends
+//! each word little-endian as a whole ([`Encoding::Evt21`], OpenEB's `little`); an IMX636 sends
+//! bits 32–63 first, then bits 0–31, each half little-endian ([`Encoding::Evt21Legacy`],
+//! OpenEB's `legacy`).
+//!
 //! EVT 3.0: u16 words, type in bits 12–15: `0x0` y, `0x2` one event at x (polarity bit 11),
 //! `0x3` vector base x and polarity, `0x4`/`0x5` 12- and 8-bit vectors of events from the base
 //! (which then moves on by 12 or 8), `0x6`/`0x8` time low and time high (12 bits each: 24-bit
 //! time), `0x7`/`0xA`/`0xE`/`0xF` skipped.
 //!
 //! Recoveries, each counted in [`EvtCounts`]: the time-high counter's wraps are unwrapped
-//! ([`Unwrapper`]); events before the first time-high word (EVT 3.0: or the first y) have no
-//! time base and are dropped, as Prophesee's OpenEB does; a time-high word that changes the
+//! ([`Unwrapper`]: a step back by more than half the counter's range; OpenEB's EVT 2.1 decoder
+//! takes only the step from the largest value to 0, the same on any stream that does not jump
+//! back hours); events before the first time-high word (EVT 3.0: or the first y) have no
+//! time base and are dropped (an EVT 2.1 vector: all its events), as Prophesee's OpenEB does; a time-high word that changes the
 //! period sets the EVT 3.0 time low to 0 (OpenEB); in an EVT 3.0 stream that has given one
 //! time-high word so far, a time low more than 2,048 µs below the previous one with no
 //! time-high word between starts the next period (expelliarmus writes such files; with more
@@ -117,6 +127,12 @@ impl Unwrapper {
 pub enum Encoding {
     /// EVT 2.0: 32-bit words, one event each.
     Evt2,
+    /// EVT 2.1 as a GenX320 sends it (OpenEB's `little` endianness): 64-bit words, each
+    /// little-endian as a whole, up to 32 events each (vectors).
+    Evt21,
+    /// EVT 2.1 as an IMX636 sends it (OpenEB's `legacy` endianness): each 64-bit word as its
+    /// upper 32 bits, then its lower 32 bits (the vector's mask), each little-endian.
+    Evt21Legacy,
     /// EVT 3.0: 16-bit words, up to 12 events each (vectors).
     Evt3,
 }
@@ -126,6 +142,7 @@ impl Encoding {
     pub const fn word_bytes(self) -> usize {
         match self {
             Self::Evt2 => 4,
+            Self::Evt21 | Self::Evt21Legacy => 8,
             Self::Evt3 => 2,
         }
     }
@@ -134,6 +151,7 @@ impl Encoding {
     pub const fn max_events_per_word(self) -> usize {
         match self {
             Self::Evt2 => 1,
+            Self::Evt21 | Self::Evt21Legacy => 32,
             Self::Evt3 => 12,
         }
     }
@@ -147,8 +165,8 @@ pub enum EvtError {
     ReservedType {
         /// Byte index of the word.
         at: usize,
-        /// The word.
-        word: u32,
+        /// The word (an EVT 2.1 word as its 64 bits, the type in bits 60–63).
+        word: u64,
     },
     /// An event outside the sensor size given to [`EvtDecoder::new`].
     OutsideSensor {
@@ -201,7 +219,7 @@ pub struct Progress {
     pub events: usize,
 }
 
-/// A streaming EVT 2.0 / 3.0 decoder: a few words of state, no buffer.
+/// A streaming EVT 2.0 / 2.1 / 3.0 decoder: a few words of state, no buffer.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct EvtDecoder {
     encoding: Encoding,
@@ -232,7 +250,7 @@ impl EvtDecoder {
             size,
             high: None,
             high_counter: Unwrapper::new(match encoding {
-                Encoding::Evt2 => 28,
+                Encoding::Evt2 | Encoding::Evt21 | Encoding::Evt21Legacy => 28,
                 Encoding::Evt3 => 12,
             }),
             low: 0,
@@ -283,7 +301,9 @@ impl EvtDecoder {
         emit: impl FnMut(Event),
     ) -> Result<Progress, EvtError> {
         match self.encoding {
-            Encoding::Evt2 => self.evt2(bytes, room, emit),
+            Encoding::Evt2 => self.evt2::<4, false>(bytes, room, emit),
+            Encoding::Evt21 => self.evt2::<8, false>(bytes, room, emit),
+            Encoding::Evt21Legacy => self.evt2::<8, true>(bytes, room, emit),
             Encoding::Evt3 => self.evt3(bytes, room, emit),
         }
     }
@@ -306,49 +326,76 @@ impl EvtDecoder {
         }
     }
 
-    fn evt2(
+    /// EVT 2.0 (`W` = 4) and EVT 2.1 (`W` = 8) words. An EVT 2.1 word's upper 32 bits are an
+    /// EVT 2.0 word (type, time low, x, y; or a time high), its lower 32 bits a mask of the
+    /// events at x + 0 … x + 31; an EVT 2.0 event is a mask of one bit. `LEGACY`: the upper
+    /// half comes first.
+    fn evt2<const W: usize, const LEGACY: bool>(
         &mut self,
         bytes: &[u8],
         room: usize,
         mut emit: impl FnMut(Event),
     ) -> Result<Progress, EvtError> {
+        // `max_events_per_word`: a mask of one bit, or of 32.
+        let max = if W == 8 { 32 } else { 1 };
         let mut events = 0;
-        for (i, b) in bytes.chunks_exact(4).enumerate() {
-            if events + Encoding::Evt2.max_events_per_word() > room {
-                return Ok(Progress {
-                    bytes: i * 4,
-                    events,
-                });
+        for (i, b) in bytes.chunks_exact(W).enumerate() {
+            let at = i * W;
+            if events + max > room {
+                return Ok(Progress { bytes: at, events });
             }
-            let w = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            let first = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            let (w, mask) = match b.get(4..8) {
+                Some(&[b4, b5, b6, b7]) => {
+                    let second = u32::from_le_bytes([b4, b5, b6, b7]);
+                    if LEGACY {
+                        (first, second)
+                    } else {
+                        (second, first)
+                    }
+                }
+                _ => (first, 1),
+            };
             match w >> 28 {
                 ty @ (0x0 | 0x1) => {
                     let Some(high) = self.high else {
-                        self.counts.dropped_events += 1;
+                        self.counts.dropped_events += u64::from(mask.count_ones());
                         continue;
                     };
-                    let x = (w >> 11) & 0x7FF;
+                    let x0 = (w >> 11) & 0x7FF;
                     let y = w & 0x7FF;
-                    self.check(i * 4, x, y)?;
                     let t = (high << 6) | i64::from((w >> 22) & 0x3F);
-                    emit(Event::new(x as u16, y as u16, t, ty == 1));
-                    events += 1;
+                    let mut m = mask;
+                    while m != 0 {
+                        let x = x0 + m.trailing_zeros();
+                        m &= m - 1;
+                        self.check(at, x, y)?;
+                        emit(Event::new(x as u16, y as u16, t, ty == 1));
+                        events += 1;
+                    }
                 }
                 0x8 => {
                     let high = self
                         .high_counter
                         .unwrap(u64::from(w & 0x0FFF_FFFF))
                         .filter(|&h| h < 1 << 57)
-                        .ok_or(EvtError::TimeOverflow { at: i * 4 })?;
+                        .ok_or(EvtError::TimeOverflow { at })?;
                     self.high = Some(high);
                     self.counts.timestamp_wraps = self.high_counter.wraps();
                 }
                 0xA | 0xE | 0xF => self.counts.skipped_words += 1,
-                _ => return Err(EvtError::ReservedType { at: i * 4, word: w }),
+                _ => {
+                    let word = if W == 8 {
+                        u64::from(w) << 32 | u64::from(mask)
+                    } else {
+                        u64::from(w)
+                    };
+                    return Err(EvtError::ReservedType { at, word });
+                }
             }
         }
         Ok(Progress {
-            bytes: bytes.len() / 4 * 4,
+            bytes: bytes.len() / W * W,
             events,
         })
     }
@@ -358,7 +405,8 @@ impl EvtDecoder {
     /// sensor) with few live values; the outer loop takes vector bases and vectors, and hands
     /// every other case to [`EvtDecoder::word3`] with the state written back first and read
     /// again after. No such case gives an event, so `emit` is never handed on and stays in
-    /// registers.
+    /// registers. Out of line: its loop's registers are its own wherever `decode` is inlined.
+    #[inline(never)]
     fn evt3(
         &mut self,
         bytes: &[u8],
@@ -525,7 +573,7 @@ impl EvtDecoder {
             _ => {
                 return Err(EvtError::ReservedType {
                     at,
-                    word: u32::from(w),
+                    word: u64::from(w),
                 })
             }
         }

@@ -9,7 +9,7 @@
 //! | stage | module | holds |
 //! |---|---|---|
 //! | events | [`event`] | the [`Event`] type |
-//! | sensor words | [`evt`] | Prophesee EVT 2.0 / 3.0 streams decoded into events, state kept across buffers |
+//! | sensor words | [`evt`] | Prophesee EVT 2.0 / 2.1 / 3.0 streams decoded into events, state kept across buffers |
 //! | rasterization | [`raster`] | streaming window → event point cloud `[x, y, t_avg, p_acc, cnt]` |
 //! | sampling | [`sample`] | `M` points → `N` network inputs, seeded and reproducible |
 //! | model | [`model`] | the `.evq` model blob, validated and read in place |

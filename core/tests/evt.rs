@@ -1,4 +1,4 @@
-//! The EVT 2.0 / 3.0 decoder as firmware drives it: words arriving in buffers cut anywhere,
+//! The EVT 2.0 / 2.1 / 3.0 decoder as firmware drives it: words arriving in buffers cut anywhere,
 //! output slices of any size, typed errors with the word's byte index. (The host's RAW reader
 //! runs the same decoder; `host/tests/formats.rs` checks the formats' words one by one.)
 
@@ -21,6 +21,52 @@ fn evt2(events: &[Event]) -> Vec<u8> {
         }
         let payload = ((e.t as u32 & 0x3F) << 22) | (u32::from(e.x) << 11) | u32::from(e.y);
         out.extend(evt2_word(u32::from(e.on), payload));
+    }
+    out
+}
+
+/// An EVT 2.1 word from its upper half (laid out as an EVT 2.0 word) and its mask, in the
+/// GenX320's byte order (little-endian as a whole) or the IMX636's (`legacy`: upper half first).
+fn evt21_word(upper: u32, mask: u32, legacy: bool) -> [u8; 8] {
+    let (first, second) = if legacy { (upper, mask) } else { (mask, upper) };
+    let mut b = [0; 8];
+    b[..4].copy_from_slice(&first.to_le_bytes());
+    b[4..].copy_from_slice(&second.to_le_bytes());
+    b
+}
+
+/// An EVT 2.1 stream of `events` (time-ordered, times below 2^34): events at one time, row and
+/// polarity within 32 columns of the first become one vector word.
+fn evt21(events: &[Event], legacy: bool) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut high = None;
+    let mut i = 0;
+    while let Some(e) = events.get(i) {
+        if high != Some(e.t >> 6) {
+            high = Some(e.t >> 6);
+            out.extend(evt21_word(
+                0x8 << 28 | (e.t >> 6) as u32 & 0x0FFF_FFFF,
+                0,
+                legacy,
+            ));
+        }
+        let mut mask = 0u32;
+        let mut j = i;
+        while let Some(f) = events.get(j) {
+            let bit = u32::from(f.x.wrapping_sub(e.x));
+            let same = (f.t, f.y, f.on) == (e.t, e.y, e.on) && f.x >= e.x && bit < 32;
+            if !same || mask & (1 << bit) != 0 || (j > i && bit <= 31 - mask.leading_zeros()) {
+                break;
+            }
+            mask |= 1 << bit;
+            j += 1;
+        }
+        let upper = u32::from(e.on) << 28
+            | (e.t as u32 & 0x3F) << 22
+            | u32::from(e.x) << 11
+            | u32::from(e.y);
+        out.extend(evt21_word(upper, mask, legacy));
+        i = j;
     }
     out
 }
@@ -116,12 +162,143 @@ proptest! {
     #[test]
     fn buffers_cut_anywhere_decode_alike(seed in any::<u64>(), chunk in 1usize..200, room in 12usize..64) {
         let ev = events(seed, 300, 3_000);
-        for (enc, bytes) in [(Encoding::Evt2, evt2(&ev)), (Encoding::Evt3, evt3(&ev))] {
+        for (enc, bytes) in [
+            (Encoding::Evt2, evt2(&ev)),
+            (Encoding::Evt21, evt21(&ev, false)),
+            (Encoding::Evt21Legacy, evt21(&ev, true)),
+            (Encoding::Evt3, evt3(&ev)),
+        ] {
+            let room = room.max(enc.max_events_per_word());
             let (got, counts) = decode_chunked(enc, &bytes, chunk, room);
             prop_assert_eq!(&got, &ev);
             prop_assert_eq!(counts, EvtCounts::default());
         }
     }
+}
+
+/// Events in runs that share a time, row and polarity at ascending columns (1–40 per run, gaps
+/// of 1–3 columns): EVT 2.1 vectors of several events, runs longer than 32 columns split.
+fn events_in_rows(seed: u64, runs: usize) -> Vec<Event> {
+    let mut s = seed | 1;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        s
+    };
+    let mut out = Vec::new();
+    let mut t = 0;
+    for _ in 0..runs {
+        t += (next() % 200) as i64;
+        let r = next();
+        let (y, on, n) = ((r % 720) as u16, r >> 20 & 1 == 1, 1 + (r >> 24) % 40);
+        let mut x = ((r >> 32) % 1100) as u16;
+        for _ in 0..n {
+            out.push(Event::new(x, y, t, on));
+            x += 1 + (next() % 3) as u16;
+        }
+    }
+    out
+}
+
+proptest! {
+    /// EVT 2.1 vectors in both byte orders, cut anywhere, into outputs of any room that holds a
+    /// vector.
+    #[test]
+    fn evt21_vectors_decode_in_both_byte_orders(seed in any::<u64>(), chunk in 1usize..200, room in 32usize..80) {
+        let ev = events_in_rows(seed, 60);
+        for (enc, legacy) in [(Encoding::Evt21, false), (Encoding::Evt21Legacy, true)] {
+            let bytes = evt21(&ev, legacy);
+            prop_assert!(bytes.len() / 8 < ev.len(), "vectors of several events");
+            let (got, counts) = decode_chunked(enc, &bytes, chunk, room);
+            prop_assert_eq!(&got, &ev);
+            prop_assert_eq!(counts, EvtCounts::default());
+        }
+    }
+}
+
+#[test]
+fn evt21_byte_orders_as_openeb_lays_them_out() {
+    // OpenEB's `Evt21Raw::Event_2D { valid: 9, y: 7, x: 32, ts: 3, type: 1 }` over memory, after
+    // a time high of 5: little-endian as a whole (GenX320), and upper half first (IMX636, the
+    // `Evt21LegacyRaw` layout).
+    let little = [
+        [0x00, 0x00, 0x00, 0x00, 0x05, 0x00, 0x00, 0x80],
+        [0x09, 0x00, 0x00, 0x00, 0x07, 0x00, 0xc1, 0x10],
+    ]
+    .concat();
+    let legacy = [
+        [0x05, 0x00, 0x00, 0x80, 0x00, 0x00, 0x00, 0x00],
+        [0x07, 0x00, 0xc1, 0x10, 0x09, 0x00, 0x00, 0x00],
+    ]
+    .concat();
+    let want = [
+        Event::new(32, 7, 5 << 6 | 3, true),
+        Event::new(35, 7, 5 << 6 | 3, true),
+    ];
+    for (enc, bytes) in [(Encoding::Evt21, little), (Encoding::Evt21Legacy, legacy)] {
+        let mut d = EvtDecoder::new(enc, Some((64, 8)));
+        let mut out = [Event::default(); 32];
+        let p = d.decode(&bytes, &mut out).unwrap();
+        assert_eq!((p.bytes, &out[..p.events]), (16, &want[..]), "{enc:?}");
+    }
+}
+
+#[test]
+fn evt21_drops_errors_and_room() {
+    let th = evt21_word(0x8 << 28 | 1, 0, false);
+    // A vector before any time high: its three events dropped; a trigger skipped.
+    let early = evt21_word(1 << 28 | 30 << 11 | 2, 0b111, false);
+    let trigger = evt21_word(0xA << 28, 0, false);
+    let mut d = EvtDecoder::new(Encoding::Evt21, Some((40, 8)));
+    let mut out = [Event::default(); 64];
+    let bytes = [early, trigger, th].concat();
+    assert_eq!(d.decode(&bytes, &mut out).unwrap().events, 0);
+    assert_eq!(
+        d.counts(),
+        EvtCounts {
+            dropped_events: 3,
+            skipped_words: 1,
+            ..EvtCounts::default()
+        }
+    );
+    // A vector running past a 40-column sensor: its events inside come out, then the error
+    // names the word and the first pixel outside.
+    let mut d = EvtDecoder::new(Encoding::Evt21, Some((40, 8)));
+    let past = evt21_word(30 << 11 | 2, 1 | 1 << 15, false);
+    let mut seen = Vec::new();
+    let err = d
+        .decode_with(&[th, past].concat(), 64, |e| seen.push(e))
+        .unwrap_err();
+    assert_eq!(
+        err,
+        EvtError::OutsideSensor {
+            at: 8,
+            x: 45,
+            y: 2,
+            size: (40, 8)
+        }
+    );
+    assert_eq!(seen, [Event::new(30, 2, 1 << 6, false)]);
+    // Reserved types name the whole 64-bit word.
+    let mut d = EvtDecoder::new(Encoding::Evt21, None);
+    assert_eq!(
+        d.decode(&evt21_word(0x3 << 28 | 5, 0xFF, false), &mut out),
+        Err(EvtError::ReservedType {
+            at: 0,
+            word: 0x3000_0005_0000_00FF
+        })
+    );
+    // Fewer than 32 free places: no word is decoded (a vector can give 32 events).
+    let mut d = EvtDecoder::new(Encoding::Evt21, None);
+    let mut small = [Event::default(); 31];
+    assert_eq!(
+        d.decode(&th, &mut small).unwrap(),
+        Progress {
+            bytes: 0,
+            events: 0
+        }
+    );
 }
 
 #[test]
@@ -341,7 +518,7 @@ impl Reference {
             _ => {
                 return Err(EvtError::ReservedType {
                     at,
-                    word: u32::from(w),
+                    word: u64::from(w),
                 })
             }
         }

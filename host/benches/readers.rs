@@ -102,6 +102,13 @@ fn files(dir: &Path) -> Vec<(&'static str, PathBuf)> {
     let mut evt2 = raw_header(&["evt 2.0", "format EVT2;height=720;width=1280", "end"]);
     evt2.extend_from_slice(&evt2_body(&prophesee));
     put("evt2", "evt2.raw", evt2);
+    // Random events rarely share a row and time: one event per 64-bit word here.
+    let mut evt21 = raw_header(&[
+        "format EVT21;endianness=little;height=720;width=1280",
+        "end",
+    ]);
+    evt21.extend_from_slice(&evt21_body(&prophesee));
+    put("evt21", "evt21.raw", evt21);
     let mut evt3 = raw_header(&["evt 3.0", "format EVT3;height=720;width=1280", "end"]);
     evt3.extend_from_slice(&evt3_body(&prophesee));
     put("evt3", "evt3.raw", evt3);

@@ -1,4 +1,4 @@
-//! The readers of AEDAT 2.0 (jAER, DHP19), AEDAT 3.1, Prophesee EVT 2.0 / 3.0 / `.dat` and
+//! The readers of AEDAT 2.0 (jAER, DHP19), AEDAT 3.1, Prophesee EVT 2.0 / 2.1 / 3.0 / `.dat` and
 //! text: files built byte by byte from the format descriptions (`support/encoders.rs`),
 //! damaged variants, detection, memory bounds, and proptest fuzzing of every decoder.
 
@@ -146,6 +146,7 @@ enum Dec {
     Aedat2Dhp19,
     Aedat3,
     Evt2,
+    Evt21,
     Evt3,
     Dat,
     Text,
@@ -153,11 +154,12 @@ enum Dec {
     Es,
 }
 
-const DECODERS: [Dec; 9] = [
+const DECODERS: [Dec; 10] = [
     Dec::Aedat2,
     Dec::Aedat2Dhp19,
     Dec::Aedat3,
     Dec::Evt2,
+    Dec::Evt21,
     Dec::Evt3,
     Dec::Dat,
     Dec::Text,
@@ -175,6 +177,7 @@ fn decode_sized(dec: Dec, bytes: &[u8], size: Option<(u16, u16)>) -> Result<Deco
         Dec::Aedat2Dhp19 => drain(Aedat2Reader::new(bytes, Format::Aedat2Dhp19, size)?),
         Dec::Aedat3 => drain(Aedat3Reader::new(bytes, size)?),
         Dec::Evt2 => drain(EvtReader::new(bytes, Format::Evt2, size)?),
+        Dec::Evt21 => drain(EvtReader::new(bytes, Format::Evt21, size)?),
         Dec::Evt3 => drain(EvtReader::new(bytes, Format::Evt3, size)?),
         Dec::Dat => drain(DatReader::new(bytes, size)?),
         Dec::Text => drain(TextReader::new(bytes, None, size)?),
@@ -560,7 +563,7 @@ fn aedat3_damage_is_typed_and_located() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Prophesee EVT 2.0 / 3.0.
+// Prophesee EVT 2.0 / 2.1 / 3.0.
 
 #[test]
 fn evt2_decodes_spec_words() {
@@ -887,6 +890,7 @@ fn evt_round_trips_and_batches() {
     let events = synthetic(200_000, 1280, 720, 1, 0);
     for (dec, body) in [
         (Dec::Evt2, evt2_body(&events)),
+        (Dec::Evt21, evt21_body(&events)),
         (Dec::Evt3, evt3_body(&events)),
     ] {
         let mut f = raw_header(&["format EVT3;height=720;width=1280"]);
@@ -907,7 +911,7 @@ fn raw_header_encoding_and_size() {
     assert_eq!(r.info().cameras[0].width, Some(640));
     assert!(drain(r).unwrap().notes.assumptions[0].contains("640x480"));
     assert!(decode_sized(Dec::Evt2, &f, Some((5, 5))).is_err());
-    // No encoding named: RAW asks for --format; EVT 2.1 is refused; --format overrides.
+    // No encoding named: RAW asks for --format; an unknown one is refused; --format overrides.
     let anon = [
         &raw_header(&["date 2020"])[..],
         &f[raw_header(&["evt 2.0"]).len()..],
@@ -918,12 +922,69 @@ fn raw_header_encoding_and_size() {
         .unwrap()
         .to_string();
     assert!(msg.contains("--format evt2"), "{msg}");
-    assert!(EvtReader::new(&raw_header(&["evt 2.1"])[..], Format::Raw, None).is_err());
+    assert!(EvtReader::new(&raw_header(&["evt 4.0"])[..], Format::Raw, None).is_err());
     let d = drain(EvtReader::new(&f[..], Format::Evt3, None).unwrap());
     // EVT 2.0 words read as EVT 3.0 are garbage, but the override is on record (or it fails).
     if let Ok(d) = d {
         assert!(d.notes.assumptions[0].contains("overrides"));
     }
+}
+
+/// EVT 2.1's byte order from the header, as OpenEB decides it: the `endianness=` option of
+/// `% format`, else an `% endianness` line, else `legacy` (upper halves first) for a Prophesee
+/// camera whose `system_ID` is below 0x37, else whole little-endian words; a note says which
+/// when the header did not.
+#[test]
+fn evt21_byte_order_follows_openeb() {
+    let order = |lines: &[&str], format: Format| {
+        let header = raw_header(lines);
+        let r = EvtReader::new(&header[..], format, None).unwrap();
+        let f = r.info().format;
+        (f, drain(r).unwrap().notes.assumptions.join("; "))
+    };
+    let stated = order(
+        &["format EVT21;endianness=legacy;height=720;width=1280"],
+        Format::Raw,
+    );
+    assert_eq!(stated, (Format::Evt21Legacy, String::new()));
+    let both = ["format EVT21;endianness=little", "endianness legacy"];
+    assert_eq!(order(&both, Format::Raw).0, Format::Evt21);
+    let line = ["format EVT21", "endianness legacy"];
+    assert_eq!(order(&line, Format::Raw).0, Format::Evt21Legacy);
+    // OpenEB's rule for a header that states none: IMX636 (system_ID 49) and no integrator
+    // line (Prophesee) read `legacy`; another integrator, or a later system, whole words.
+    let (f, n) = order(&["evt 2.1", "system_ID 49"], Format::Raw);
+    assert_eq!(f, Format::Evt21Legacy);
+    assert!(
+        n.contains("system_ID 49") && n.contains("--format evt21"),
+        "{n}"
+    );
+    let other = ["evt 2.1", "camera_integrator_name Foo", "system_ID 49"];
+    let (f, n) = order(&other, Format::Raw);
+    assert_eq!(f, Format::Evt21);
+    assert!(
+        n.contains("GenX320") && n.contains("--format evt21-legacy"),
+        "{n}"
+    );
+    assert_eq!(
+        order(&["format EVT21", "system_ID 64"], Format::Raw).0,
+        Format::Evt21
+    );
+    // --format overrides, on record.
+    let (f, n) = order(&["format EVT21;endianness=legacy"], Format::Evt21);
+    assert_eq!(f, Format::Evt21);
+    assert!(n.contains("overrides") && n.contains("evt21-legacy"), "{n}");
+    // A reserved type is an error that shows the whole word.
+    let mut f = raw_header(&["format EVT21;endianness=little;width=64;height=64"]);
+    let start = f.len() as u64;
+    f.extend_from_slice(&(0x3000_0005_0000_00FFu64).to_le_bytes());
+    let read = || drain(EvtReader::new(&f[..], Format::Raw, None).unwrap());
+    assert_eq!(corrupt_offset(read()), start);
+    let msg = error_text(read());
+    assert!(
+        msg.contains("0x30000005000000ff") && msg.contains("reserved type 0x3"),
+        "{msg}"
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1329,6 +1390,8 @@ fn seeds() -> Vec<(&'static str, Dec, Format, Vec<u8>)> {
     evt2.extend_from_slice(&evt2_body(&one));
     let mut evt3 = raw_header(&["evt 3.0", "format EVT3;height=260;width=346", "end"]);
     evt3.extend_from_slice(&evt3_body(&one));
+    let mut evt21 = raw_header(&["format EVT21;endianness=little;height=260;width=346", "end"]);
+    evt21.extend_from_slice(&evt21_body(&one));
     let cams = [
         CameraInfo {
             id: 0,
@@ -1364,6 +1427,7 @@ fn seeds() -> Vec<(&'static str, Dec, Format, Vec<u8>)> {
         ),
         ("evt2.raw", Dec::Evt2, Format::Raw, evt2),
         ("evt3.raw", Dec::Evt3, Format::Raw, evt3),
+        ("evt21.raw", Dec::Evt21, Format::Raw, evt21),
         ("cd.dat", Dec::Dat, Format::Dat, dat_file(&one, 346, 260)),
         ("rpg.txt", Dec::Text, Format::Text, text_seconds(&one)),
         (
@@ -1519,6 +1583,7 @@ fn repeatable() -> Vec<(Dec, Vec<u8>, Vec<u8>)> {
         (Dec::Aedat2, a2_head, a2),
         (Dec::Aedat3, a3_head, a3),
         (Dec::Evt2, evt_head.clone(), evt2_body(&e)),
+        (Dec::Evt21, evt_head.clone(), evt21_body(&e)),
         (Dec::Evt3, evt_head, evt3_body(&e)),
         (Dec::Dat, dat_head.clone(), dat[dat_head.len()..].to_vec()),
         (Dec::Text, Vec::new(), text_seconds(&e)),
@@ -1538,6 +1603,7 @@ fn stream_count(dec: Dec, header: &[u8], block: &[u8], blocks: usize) -> u64 {
         Dec::Aedat2 => Box::new(Aedat2Reader::new(src, Format::Aedat2, None).unwrap()),
         Dec::Aedat3 => Box::new(Aedat3Reader::new(src, None).unwrap()),
         Dec::Evt2 => Box::new(EvtReader::new(src, Format::Evt2, None).unwrap()),
+        Dec::Evt21 => Box::new(EvtReader::new(src, Format::Evt21, None).unwrap()),
         Dec::Evt3 => Box::new(EvtReader::new(src, Format::Evt3, None).unwrap()),
         Dec::Dat => Box::new(DatReader::new(src, None).unwrap()),
         Dec::Text => Box::new(TextReader::new(src, Some(TimeUnit::S), None).unwrap()),
@@ -1656,7 +1722,7 @@ proptest! {
             Dec::Aedat2 => aedat2_header(Some("DAVIS346B"), true),
             Dec::Aedat2Dhp19 => aedat2_header(None, false),
             Dec::Aedat3 => aedat3_header(&[(1, "DVXplorer")]),
-            Dec::Evt2 | Dec::Evt3 => raw_header(&["evt 3.0", "end"]),
+            Dec::Evt2 | Dec::Evt21 | Dec::Evt3 => raw_header(&["evt 3.0", "end"]),
             Dec::Dat => dat_file(&[], 64, 64),
             Dec::Text => b"t x y p\n".to_vec(),
             Dec::Aedat4 => aedat4_header(&[CameraInfo { id: 0, width: Some(64), height: Some(64), name: None }]),

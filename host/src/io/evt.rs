@@ -1,5 +1,5 @@
-//! Prophesee RAW files: EVT 2.0 and EVT 3.0 encodings, read ([`EvtReader`]) and, in EVT 3.0,
-//! written ([`Evt3Writer`]).
+//! Prophesee RAW files: EVT 2.0, EVT 2.1 and EVT 3.0 encodings, read ([`EvtReader`]) and, in
+//! EVT 3.0, written ([`Evt3Writer`]).
 //!
 //! # Header
 //!
@@ -7,8 +7,9 @@
 //! `% camera_integrator_name …`, `% serial_number …`, and in recent files a final `% end`. The
 //! header ends after `% end` or at the first line that does not start with `%` (as Prophesee's
 //! OpenEB decides) or that holds control bytes (event words whose first byte happens to be
-//! `%` = 0x25). The encoding comes from `% format` or `% evt`; `--format evt2|evt3`
-//! overrides it (recorded in [`ReadNotes::assumptions`]). EVT 2.1 is refused. The size comes
+//! `%` = 0x25). The encoding comes from `% format` or `% evt`; `--format
+//! evt2|evt21|evt21-legacy|evt3` overrides it (recorded in [`ReadNotes::assumptions`]). EVT
+//! 2.1's byte order comes from the header as OpenEB decides it (below). The size comes
 //! from `% format …;width=…;height=…` or `% geometry`; else, in files of Prophesee's own
 //! cameras written before those lines existed, from `% system_ID` through OpenEB's table
 //! (Gen3.0 and Gen3.1: 640 × 480; Gen4.0, Gen4.1 and IMX636: 1280 × 720) unless
@@ -24,6 +25,23 @@
 //! | 0x0 / 0x1 | CD_OFF / CD_ON | t low 6 bits in 22–27, x in 11–21, y in 0–10 |
 //! | 0x8 | EVT_TIME_HIGH | bits 0–27 = t >> 6 |
 //! | 0xA, 0xE, 0xF | EXT_TRIGGER, OTHERS, CONTINUED | skipped, counted |
+//!
+//! # EVT 2.1
+//!
+//! u64 words, type in bits 60–63 (the GenX320's default encoding; the IMX636's other one):
+//!
+//! | type | word | meaning |
+//! |---|---|---|
+//! | 0x0 / 0x1 | EVT_NEG / EVT_POS | t low 6 bits in 54–59, x in 43–53, y in 32–42; bit `i` of 0–31 set: an event at x + i |
+//! | 0x8 | EVT_TIME_HIGH | bits 32–59 = t >> 6 |
+//! | 0xA, 0xE, 0xF | EXT_TRIGGER, OTHERS, CONTINUED | skipped, counted |
+//!
+//! Byte order: a GenX320 writes each word little-endian as a whole (`evt21`); an IMX636 writes
+//! bits 32–63 first, then bits 0–31, each half little-endian (`evt21-legacy`, OpenEB's
+//! `legacy` endianness). The header says which in an `endianness=` option of `% format EVT21;…`
+//! or an `% endianness` line; without either, OpenEB reads `legacy` for a Prophesee camera
+//! whose `% system_ID` is below 0x37 (the IMX636 and Gen4 EVKs) and whole words otherwise, and
+//! so does this reader, with a note saying which.
 //!
 //! # EVT 3.0
 //!
@@ -42,7 +60,7 @@
 //!
 //! The words are decoded by the core's [`EvtDecoder`] (`evpose_core::evt`, the decoder a
 //! microcontroller runs), whose documentation is the reference; in short: the time counters
-//! wrap (EVT 2.0 after 2³⁴ µs, EVT 3.0 after 2²⁴ µs ≈ 16.8 s): a time-high word more than half
+//! wrap (EVT 2.0 and 2.1 after 2³⁴ µs, EVT 3.0 after 2²⁴ µs ≈ 16.8 s): a time-high word more than half
 //! the range below the previous one is a wrap, counted in [`ReadNotes::timestamp_wraps`]. In an
 //! EVT 3.0 file that has given one time-high word so far, a time-low word more than half its
 //! range (2,048 µs) below the previous one, with no time-high word between them, starts the
@@ -133,20 +151,7 @@ impl PercentHeader {
     /// states none (files of Metavision before 2.2 or so), with the sensor's name; only for
     /// files whose integrator is Prophesee, as OpenEB decides (`psee_raw_file_header.cpp`).
     pub(crate) fn system_id_size(&self) -> Option<((u16, u16), &'static str)> {
-        // OpenEB's `check_header`: the legacy `integrator_name` stands for both the camera's
-        // and the plugin's integrator when neither is named; no integrator line at all means
-        // Prophesee; the table applies only when both are Prophesee.
-        let (camera, plugin) = match (
-            self.get("camera_integrator_name"),
-            self.get("plugin_integrator_name"),
-        ) {
-            (None, None) => {
-                let legacy = self.get("integrator_name").unwrap_or("Prophesee");
-                (Some(legacy), Some(legacy))
-            }
-            named => named,
-        };
-        if camera != Some("Prophesee") || plugin != Some("Prophesee") {
+        if !self.prophesee_integrated() {
             return None;
         }
         let vga = (640, 480);
@@ -161,25 +166,97 @@ impl PercentHeader {
         })
     }
 
-    /// The encoding the header names, as written (`EVT3`, `3.0`, …), and what it means.
-    fn encoding(&self) -> Option<(String, Option<Encoding>)> {
+    /// Whether the camera and the plugin are Prophesee's, as OpenEB's `check_header` decides:
+    /// the legacy `integrator_name` stands for both when neither is named; no integrator line
+    /// at all means Prophesee.
+    fn prophesee_integrated(&self) -> bool {
+        let (camera, plugin) = match (
+            self.get("camera_integrator_name"),
+            self.get("plugin_integrator_name"),
+        ) {
+            (None, None) => {
+                let legacy = self.get("integrator_name").unwrap_or("Prophesee");
+                (Some(legacy), Some(legacy))
+            }
+            named => named,
+        };
+        camera == Some("Prophesee") && plugin == Some("Prophesee")
+    }
+
+    /// The encoding the header names, as written (`EVT3`, `3.0`, …), and what it means; for
+    /// EVT 2.1, with a note when the byte order was not stated.
+    fn encoding(&self) -> Option<(String, Option<Encoding>, Option<String>)> {
         if let Some(f) = self.get("format") {
             let name = f.split(';').next().unwrap_or("").trim().to_string();
-            let enc = match name.to_ascii_uppercase().as_str() {
-                "EVT2" => Some(Encoding::Evt2),
-                "EVT3" => Some(Encoding::Evt3),
-                _ => None,
+            let (enc, note) = match name.to_ascii_uppercase().as_str() {
+                "EVT2" => (Some(Encoding::Evt2), None),
+                "EVT21" => {
+                    let (e, note) = self.evt21_order();
+                    (Some(e), note)
+                }
+                "EVT3" => (Some(Encoding::Evt3), None),
+                _ => (None, None),
             };
-            return Some((format!("format {name}"), enc));
+            return Some((format!("format {name}"), enc, note));
         }
         self.get("evt").map(|v| {
-            let enc = match v {
-                "2.0" | "2" => Some(Encoding::Evt2),
-                "3.0" | "3" => Some(Encoding::Evt3),
-                _ => None,
+            let (enc, note) = match v {
+                "2.0" | "2" => (Some(Encoding::Evt2), None),
+                "2.1" => {
+                    let (e, note) = self.evt21_order();
+                    (Some(e), note)
+                }
+                "3.0" | "3" => (Some(Encoding::Evt3), None),
+                _ => (None, None),
             };
-            (format!("evt {v}"), enc)
+            (format!("evt {v}"), enc, note)
         })
+    }
+
+    /// EVT 2.1's byte order as OpenEB decides it (`psee_raw_file_header.cpp`,
+    /// `make_decoder.cpp`): the `endianness=` option of `% format`, else an `% endianness` line,
+    /// else `legacy` for a Prophesee camera whose `% system_ID` is below 0x37 (the IMX636 and
+    /// Gen4 EVKs), else little-endian; `legacy` reads upper halves first, anything else whole
+    /// words. A note says which when the header did not state it.
+    fn evt21_order(&self) -> (Encoding, Option<String>) {
+        let option = self.get("format").and_then(|f| {
+            f.split(';').skip(1).find_map(|opt| {
+                let (k, v) = opt.split_once('=')?;
+                k.trim()
+                    .eq_ignore_ascii_case("endianness")
+                    .then(|| v.trim().to_string())
+            })
+        });
+        let stated = option.or_else(|| self.get("endianness").map(|v| v.trim().to_string()));
+        if let Some(order) = stated {
+            let enc = if order.eq_ignore_ascii_case("legacy") {
+                Encoding::Evt21Legacy
+            } else {
+                Encoding::Evt21
+            };
+            return (enc, None);
+        }
+        let id = self
+            .get("system_id")
+            .and_then(|v| v.trim().parse::<u32>().ok());
+        match id {
+            Some(id) if (1..0x37).contains(&id) && self.prophesee_integrated() => (
+                Encoding::Evt21Legacy,
+                Some(format!(
+                    "EVT 2.1 words read upper half first (an IMX636's order, OpenEB's `legacy`), \
+                     as OpenEB reads `% system_ID {id}` with no endianness stated; --format \
+                     evt21 reads whole little-endian words"
+                )),
+            ),
+            _ => (
+                Encoding::Evt21,
+                Some(
+                    "EVT 2.1 words read little-endian whole (a GenX320's order; the header \
+                     states no endianness); --format evt21-legacy reads an IMX636's"
+                        .into(),
+                ),
+            ),
+        }
     }
 
     /// A camera name from the integrator, serial number or plugin lines.
@@ -226,11 +303,13 @@ pub(crate) fn detect_percent_header(head: &[u8]) -> Format {
 fn format_of(encoding: Encoding) -> Format {
     match encoding {
         Encoding::Evt2 => Format::Evt2,
+        Encoding::Evt21 => Format::Evt21,
+        Encoding::Evt21Legacy => Format::Evt21Legacy,
         Encoding::Evt3 => Format::Evt3,
     }
 }
 
-/// Streaming Prophesee RAW reader (EVT 2.0 / 3.0).
+/// Streaming Prophesee RAW reader (EVT 2.0 / 2.1 / 3.0).
 pub struct EvtReader<R> {
     src: Source<R>,
     info: StreamInfo,
@@ -244,7 +323,8 @@ pub struct EvtReader<R> {
 
 impl<R: Read> EvtReader<R> {
     /// Parses the header. `format` is [`Format::Raw`] (encoding from the header),
-    /// [`Format::Evt2`] or [`Format::Evt3`]; `size` is the fallback sensor size.
+    /// [`Format::Evt2`], [`Format::Evt21`], [`Format::Evt21Legacy`] or [`Format::Evt3`]; `size`
+    /// is the fallback sensor size.
     pub fn new(inner: R, format: Format, size: Option<(u16, u16)>) -> Result<Self, ReadError> {
         let mut src = Source::new(inner, 0);
         let header = PercentHeader::read(&mut src, true)?;
@@ -252,30 +332,40 @@ impl<R: Read> EvtReader<R> {
         let stated = header.encoding();
         let given = match format {
             Format::Evt2 => Some(Encoding::Evt2),
+            Format::Evt21 => Some(Encoding::Evt21),
+            Format::Evt21Legacy => Some(Encoding::Evt21Legacy),
             Format::Evt3 => Some(Encoding::Evt3),
             _ => None,
         };
         let encoding = match (given, stated) {
-            (Some(g), Some((name, e))) => {
+            (Some(g), Some((name, e, _))) => {
                 if e != Some(g) {
                     notes.assumptions.push(format!(
-                        "the header says `{name}`, which --format {} overrides",
+                        "the header says `{name}`{}, which --format {} overrides",
+                        match e {
+                            Some(e @ (Encoding::Evt21 | Encoding::Evt21Legacy)) =>
+                                format!(" (read as {})", format_of(e).name()),
+                            _ => String::new(),
+                        },
                         format.name()
                     ));
                 }
                 g
             }
             (Some(g), None) => g,
-            (None, Some((_, Some(e)))) => e,
-            (None, Some((name, None))) => {
+            (None, Some((_, Some(e), note))) => {
+                notes.assumptions.extend(note);
+                e
+            }
+            (None, Some((name, None, _))) => {
                 return Err(ReadError::Unsupported(format!(
-                    "Prophesee RAW encoding `{name}`; only EVT 2.0 and EVT 3.0 are read"
+                    "Prophesee RAW encoding `{name}`; EVT 2.0, EVT 2.1 and EVT 3.0 are read"
                 )))
             }
             (None, None) => {
                 return Err(ReadError::Unsupported(
                     "the RAW header names no encoding (no `% evt` or `% format` line); pass \
-                     --format evt2 or --format evt3"
+                     --format evt2, evt21, evt21-legacy or evt3"
                         .into(),
                 ))
             }
@@ -368,6 +458,10 @@ impl<R: Read> EvtReader<R> {
                     Encoding::Evt2 => format!(
                         "EVT 2.0 word {word:#010x} has the reserved type {:#x}",
                         word >> 28
+                    ),
+                    Encoding::Evt21 | Encoding::Evt21Legacy => format!(
+                        "EVT 2.1 word {word:#018x} has the reserved type {:#x}",
+                        word >> 60
                     ),
                     Encoding::Evt3 => format!(
                         "EVT 3.0 word {word:#06x} has the reserved type {:#x}",

@@ -9,7 +9,7 @@
 //! | [`aedat4`] | iniVation DV AEDAT 4.0 (reader and writer) |
 //! | [`aedat2`] | jAER AEDAT 2.0: DAVIS346/240, DVS128, DHP19 (four cameras) |
 //! | [`aedat3`] | cAER / libcaer AEDAT 3.1 |
-//! | [`evt`] | Prophesee RAW, EVT 2.0 and EVT 3.0 (decoded by the core's `evt`; EVT 3.0 written too) |
+//! | [`evt`] | Prophesee RAW, EVT 2.0, EVT 2.1 and EVT 3.0 (decoded by the core's `evt`; EVT 3.0 written too) |
 //! | [`dat`] | Prophesee `.dat` CD events |
 //! | [`es`] | Event Stream `.es` (Sepia, Tarsier, faery): DVS and ATIS |
 //! | [`text`] | text / CSV `t x y p` |
@@ -116,10 +116,17 @@ pub enum Format {
     Aedat2Dhp19,
     /// cAER / libcaer AEDAT 3.1.
     Aedat3,
-    /// Prophesee RAW, encoding named by the header (`% evt 2.0` / `% evt 3.0`).
+    /// Prophesee RAW, encoding named by the header (`% evt 2.0`, `% format EVT21`, …).
     Raw,
     /// Prophesee RAW, EVT 2.0 encoding.
     Evt2,
+    /// Prophesee RAW, EVT 2.1 encoding, each 64-bit word little-endian (a GenX320's order).
+    Evt21,
+    /// Prophesee RAW, EVT 2.1 encoding, each word's upper half first (an IMX636's order,
+    /// OpenEB's `legacy` endianness).
+    #[value(name = "evt21-legacy")]
+    #[serde(rename = "evt21-legacy")]
+    Evt21Legacy,
     /// Prophesee RAW, EVT 3.0 encoding.
     Evt3,
     /// Prophesee `.dat` CD events.
@@ -134,7 +141,7 @@ pub enum Format {
 
 impl Format {
     /// Every format, in declaration order.
-    pub const ALL: [Self; 14] = [
+    pub const ALL: [Self; 16] = [
         Self::Npy,
         Self::Aedat4,
         Self::Aedat2,
@@ -145,6 +152,8 @@ impl Format {
         Self::Aedat3,
         Self::Raw,
         Self::Evt2,
+        Self::Evt21,
+        Self::Evt21Legacy,
         Self::Evt3,
         Self::Dat,
         Self::Es,
@@ -196,6 +205,8 @@ impl Format {
             Self::Aedat3 => "aedat3",
             Self::Raw => "raw",
             Self::Evt2 => "evt2",
+            Self::Evt21 => "evt21",
+            Self::Evt21Legacy => "evt21-legacy",
             Self::Evt3 => "evt3",
             Self::Dat => "dat",
             Self::Es => "es",
@@ -412,7 +423,7 @@ pub fn open(path: &Path, format: Option<Format>) -> anyhow::Result<Box<dyn Event
 /// [`DETECT_BYTES`] unless given), a fallback sensor size and the text time unit.
 ///
 /// A detected `dat` whose file name ends in `.raw` is opened as `raw` (old Prophesee RAW files
-/// may lack the `% evt` line; the RAW reader then asks for `--format evt2|evt3`).
+/// may lack the `% evt` line; the RAW reader then asks for `--format evt2|evt21|evt3`).
 pub fn open_with(path: &Path, opts: &OpenOptions) -> anyhow::Result<Box<dyn EventReader>> {
     use anyhow::Context;
     let file = BufReader::with_capacity(
@@ -486,7 +497,7 @@ pub fn from_source<S: Read + Send + 'static>(
         | Format::Aedat2Dvs128
         | Format::Aedat2Dhp19 => Box::new(aedat2::Aedat2Reader::new(file, format, size)?),
         Format::Aedat3 => Box::new(aedat3::Aedat3Reader::new(file, size)?),
-        Format::Raw | Format::Evt2 | Format::Evt3 => {
+        Format::Raw | Format::Evt2 | Format::Evt21 | Format::Evt21Legacy | Format::Evt3 => {
             Box::new(evt::EvtReader::new(file, format, size)?)
         }
         Format::Dat => Box::new(dat::DatReader::new(file, size)?),

@@ -205,6 +205,37 @@ pub fn evt2_body(events: &[Ev]) -> Vec<u8> {
     out
 }
 
+/// EVT 2.1 words for events (camera ignored), whole words little-endian (a GenX320's order):
+/// a TIME_HIGH whenever t >> 6 changes; events at one time, row and polarity with x ascending
+/// within 32 of the first share a vector word (its upper half laid out as an EVT 2.0 word).
+pub fn evt21_body(events: &[Ev]) -> Vec<u8> {
+    let word = |out: &mut Vec<u8>, upper: u32, mask: u32| {
+        out.extend_from_slice(&(u64::from(upper) << 32 | u64::from(mask)).to_le_bytes());
+    };
+    let mut out = Vec::new();
+    let mut high = None;
+    let mut i = 0;
+    while let Some(e) = events.get(i) {
+        if high != Some(e.t >> 6) {
+            high = Some(e.t >> 6);
+            word(&mut out, evt2_time_high(e.t), 0);
+        }
+        let mut mask = 1u32;
+        i += 1;
+        while let Some(f) = events.get(i) {
+            let bit = u32::from(f.x.wrapping_sub(e.x));
+            let next = (f.t, f.y, f.on) == (e.t, e.y, e.on) && f.x > e.x && bit < 32;
+            if !next || bit <= 31 - mask.leading_zeros() {
+                break;
+            }
+            mask |= 1 << bit;
+            i += 1;
+        }
+        word(&mut out, evt2_cd(e.x, e.y, e.on, e.t), mask);
+    }
+    out
+}
+
 pub fn evt3_word(out: &mut Vec<u8>, ty: u16, payload: u16) {
     out.extend_from_slice(&((ty << 12) | (payload & 0xFFF)).to_le_bytes());
 }
