@@ -17,9 +17,14 @@ writes the IMX636's order, OpenEB's `legacy`: each 64-bit word's upper half firs
    2,000 street events, the same words in the GenX320's order, and 300 words of the stream of
    (2) in both orders, each with the events the engines read from it (`*.npy`, [x, y, t, p]).
 
+4. `--firmware-asset PATH`: the street recording's first 7,500 events as EVT 2.1 words in the
+   GenX320's order (the header cut off): evutils's words, halves swapped, which evlib reads as
+   the events given; the firmware's boot check of the core's EVT 2.1 decoding
+   (`firmware/assets/street-00.evt21`).
+
 usage: python3 -m venv /tmp/ev21 && /tmp/ev21/bin/pip install evutils==0.3.18 evlib==0.13.2
        /tmp/ev21/bin/python scripts/evt21-engines.py [--evpose target/release/evpose] \\
-           [--write-fixtures DIR]
+           [--write-fixtures DIR] [--firmware-asset PATH]
 Exit status 1 when any comparison fails.
 """
 import argparse
@@ -123,6 +128,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--evpose", default=str(REPO / "target" / "release" / "evpose"))
     ap.add_argument("--write-fixtures", type=pathlib.Path)
+    ap.add_argument("--firmware-asset", type=pathlib.Path)
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         d = pathlib.Path(d)
@@ -172,6 +178,14 @@ def main():
             compare("fixture: evutils re-reads its street file",
                     evutils_read(out / "street.evutils-evt21.raw"), small)
             print(f"fixtures in {out}")
+        if a.firmware_asset:
+            first = street[:7500]
+            evutils_write(first, (346, 260), d / "first.raw")
+            to_little(d / "first.raw", d / "first-little.raw")
+            compare("firmware asset: evlib reads the words", evlib_read(d / "first-little.raw"),
+                    first)
+            a.firmware_asset.write_bytes(split(d / "first-little.raw")[1])
+            print(f"wrote {a.firmware_asset}")
     if failures:
         print(f"{len(failures)} comparison(s) failed")
         sys.exit(1)

@@ -714,18 +714,21 @@ fn run_and_compare(cpu: Cpu) -> Checked {
         0,
         "{selftest}"
     );
-    // The core's EVT 3.0 decoder on the real instructions: faery's EVT 3.0 words of the first
-    // window give its 7,500 events (`input::check_evt3`, against the EVS1 stream).
-    let evt3 = lines
-        .iter()
-        .find(|l| l.starts_with("evt3:"))
-        .unwrap_or_else(|| panic!("no evt3 line:\n{text}"));
-    assert_eq!(field::<u32>(evt3, "events"), 7_500, "{evt3}");
-    assert_eq!(field::<u32>(evt3, "mismatches"), 0, "{evt3}");
-    println!(
-        "EVT 3.0 decoding: {:.1} instructions per event",
-        field::<u64>(evt3, "instructions") as f64 / 7_500.0
-    );
+    // The core's EVT decoder on the real instructions: the first window's events as faery's
+    // EVT 3.0 words and as evutils's EVT 2.1 words in a GenX320's byte order give its 7,500
+    // events (`input::check_evt`, against the EVS1 stream).
+    for (tag, name) in [("evt3:", "EVT 3.0"), ("evt21:", "EVT 2.1")] {
+        let line = lines
+            .iter()
+            .find(|l| l.starts_with(tag))
+            .unwrap_or_else(|| panic!("no {tag} line:\n{text}"));
+        assert_eq!(field::<u32>(line, "events"), 7_500, "{line}");
+        assert_eq!(field::<u32>(line, "mismatches"), 0, "{line}");
+        println!(
+            "{name} decoding: {:.1} instructions per event",
+            field::<u64>(line, "instructions") as f64 / 7_500.0
+        );
+    }
 
     let (_, events) = evs::decode(&std::fs::read(event_asset()).unwrap()).unwrap();
     let blob = AlignedBlob::new(&std::fs::read(model_asset()).unwrap());

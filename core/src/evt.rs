@@ -284,7 +284,7 @@ impl EvtDecoder {
     pub fn decode(&mut self, bytes: &[u8], out: &mut [Event]) -> Result<Progress, EvtError> {
         let room = out.len();
         let mut slots = out.iter_mut();
-        self.decode_with(bytes, room, |e| {
+        self.decode_with(bytes, room, move |e| {
             // `room` keeps the events within `out`: every event has its slot.
             if let Some(slot) = slots.next() {
                 *slot = e;
@@ -308,16 +308,8 @@ impl EvtDecoder {
         }
     }
 
-    #[inline]
-    fn check(&self, at: usize, x: u32, y: u32) -> Result<(), EvtError> {
-        match self.size {
-            Some((w, h)) if x >= u32::from(w) || y >= u32::from(h) => Err(self.outside(at, x, y)),
-            None if x > u32::from(u16::MAX) => Err(self.outside(at, x, y)),
-            _ => Ok(()),
-        }
-    }
-
-    /// The error of an event at `(x, y)` that failed [`EvtDecoder::check`].
+    /// The error of an event at `(x, y)` outside the sensor (without a size: an x beyond 16
+    /// bits).
     #[cold]
     fn outside(&self, at: usize, x: u32, y: u32) -> EvtError {
         match self.size {
@@ -330,74 +322,119 @@ impl EvtDecoder {
     /// EVT 2.0 word (type, time low, x, y; or a time high), its lower 32 bits a mask of the
     /// events at x + 0 … x + 31; an EVT 2.0 event is a mask of one bit. `LEGACY`: the upper
     /// half comes first.
+    ///
+    /// The common case runs on locals ([`Evt2Fast`]): events of a known time inside the
+    /// sensor, and time-high words that step forward by less than half the counter's range.
+    /// Every other word goes through [`EvtDecoder::word2`] with the state written back first
+    /// and read again after; none of those gives an event, so `emit` stays in registers.
     fn evt2<const W: usize, const LEGACY: bool>(
         &mut self,
         bytes: &[u8],
         room: usize,
         mut emit: impl FnMut(Event),
     ) -> Result<Progress, EvtError> {
-        // `max_events_per_word`: a mask of one bit, or of 32.
+        // `max_events_per_word`: a mask of one bit, or of 32; a word is taken while
+        // `events ≤ last`.
         let max = if W == 8 { 32 } else { 1 };
+        let Some(last) = room.checked_sub(max) else {
+            return Ok(Progress {
+                bytes: 0,
+                events: 0,
+            });
+        };
         let mut events = 0;
-        for (i, b) in bytes.chunks_exact(W).enumerate() {
-            let at = i * W;
-            if events + max > room {
-                return Ok(Progress { bytes: at, events });
+        let mut s = Evt2Fast::load(self);
+        let mut rest = bytes;
+        'words: loop {
+            if events > last {
+                s.store(self);
+                return Ok(Progress {
+                    bytes: bytes.len() - rest.len(),
+                    events,
+                });
             }
-            let first = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-            let (w, mask) = match b.get(4..8) {
-                Some(&[b4, b5, b6, b7]) => {
-                    let second = u32::from_le_bytes([b4, b5, b6, b7]);
-                    if LEGACY {
-                        (first, second)
-                    } else {
-                        (second, first)
-                    }
-                }
-                _ => (first, 1),
-            };
-            match w >> 28 {
-                ty @ (0x0 | 0x1) => {
-                    let Some(high) = self.high else {
-                        self.counts.dropped_events += u64::from(mask.count_ones());
-                        continue;
-                    };
-                    let x0 = (w >> 11) & 0x7FF;
-                    let y = w & 0x7FF;
-                    let t = (high << 6) | i64::from((w >> 22) & 0x3F);
+            while let Some((b, tail)) = rest.split_first_chunk::<W>() {
+                let (w, mask) = halves::<W, LEGACY>(b);
+                let ty = w >> 28;
+                // One test for both polarities (a branch on the polarity, which sensors
+                // interleave at random, would be mispredicted half the time). `x_end` is 0
+                // until the time base is known: no event is inside.
+                if ty <= 0x1 && (w & 0x7FF) < s.height && s.x_end > 0 {
+                    let (x0, y) = ((w >> 11) & 0x7FF, (w & 0x7FF) as u16);
+                    let t = s.t_high | i64::from((w >> 22) & 0x3F);
                     let mut m = mask;
                     while m != 0 {
                         let x = x0 + m.trailing_zeros();
                         m &= m - 1;
-                        self.check(at, x, y)?;
-                        emit(Event::new(x as u16, y as u16, t, ty == 1));
+                        if x >= s.x_end {
+                            s.store(self);
+                            let at = bytes.len() - rest.len();
+                            return Err(self.outside(at, x, u32::from(y)));
+                        }
+                        emit(Event::new(x as u16, y, t, ty == 1));
                         events += 1;
                     }
+                    if events > last {
+                        rest = tail;
+                        continue 'words;
+                    }
+                } else if !(ty == 0x8 && s.forward(w & 0x0FFF_FFFF)) {
+                    break;
                 }
-                0x8 => {
-                    let high = self
-                        .high_counter
-                        .unwrap(u64::from(w & 0x0FFF_FFFF))
-                        .filter(|&h| h < 1 << 57)
-                        .ok_or(EvtError::TimeOverflow { at })?;
-                    self.high = Some(high);
-                    self.counts.timestamp_wraps = self.high_counter.wraps();
-                }
-                0xA | 0xE | 0xF => self.counts.skipped_words += 1,
-                _ => {
-                    let word = if W == 8 {
-                        u64::from(w) << 32 | u64::from(mask)
-                    } else {
-                        u64::from(w)
-                    };
-                    return Err(EvtError::ReservedType { at, word });
-                }
+                rest = tail;
             }
+            let Some((b, tail)) = rest.split_first_chunk::<W>() else {
+                break;
+            };
+            s.store(self);
+            let (w, mask) = halves::<W, LEGACY>(b);
+            let word = if W == 8 {
+                u64::from(w) << 32 | u64::from(mask)
+            } else {
+                u64::from(w)
+            };
+            self.word2(bytes.len() - rest.len(), w, mask, word)?;
+            s = Evt2Fast::load(self);
+            rest = tail;
         }
+        s.store(self);
         Ok(Progress {
             bytes: bytes.len() / W * W,
             events,
         })
+    }
+
+    /// An EVT 2.0 / 2.1 word outside [`EvtDecoder::evt2`]'s common case, at byte `at` (`w`: its
+    /// upper half, `mask`: its events, `word`: the whole word): events before the time base
+    /// (dropped) or outside the sensor (an error), a time-high word that does not step forward
+    /// by less than half the range (a wrap, or the first), a skipped or reserved word. Gives no
+    /// event.
+    #[inline(never)]
+    fn word2(&mut self, at: usize, w: u32, mask: u32, word: u64) -> Result<(), EvtError> {
+        match w >> 28 {
+            0x0 | 0x1 => {
+                if self.high.is_none() {
+                    self.counts.dropped_events += u64::from(mask.count_ones());
+                } else if mask != 0 {
+                    // `evt2` takes every event of a known time in a row inside the sensor: one
+                    // here lies in a row outside it (`x`: the word's first event).
+                    let x = ((w >> 11) & 0x7FF) + mask.trailing_zeros();
+                    return Err(self.outside(at, x, w & 0x7FF));
+                }
+            }
+            0x8 => {
+                let high = self
+                    .high_counter
+                    .unwrap(u64::from(w & 0x0FFF_FFFF))
+                    .filter(|&h| h < 1 << 57)
+                    .ok_or(EvtError::TimeOverflow { at })?;
+                self.high = Some(high);
+                self.counts.timestamp_wraps = self.high_counter.wraps();
+            }
+            0xA | 0xE | 0xF => self.counts.skipped_words += 1,
+            _ => return Err(EvtError::ReservedType { at, word }),
+        }
+        Ok(())
     }
 
     /// EVT 3.0 words, on [`Evt3Fast`] (the state in locals). An inner loop takes the words of
@@ -633,5 +670,90 @@ impl Evt3Fast {
         d.low = self.t & 0xFFF;
         d.base_x = self.base_x;
         d.on = self.on;
+    }
+}
+
+/// An EVT 2.0 word (`W` = 4: the word and a mask of one event) or an EVT 2.1 word (`W` = 8: its
+/// upper and lower halves; `LEGACY`, the upper half first).
+#[inline(always)]
+fn halves<const W: usize, const LEGACY: bool>(b: &[u8; W]) -> (u32, u32) {
+    let first = u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+    match b.get(4..8) {
+        Some(&[b4, b5, b6, b7]) => {
+            let second = u32::from_le_bytes([b4, b5, b6, b7]);
+            if LEGACY {
+                (first, second)
+            } else {
+                (second, first)
+            }
+        }
+        _ => (first, 1),
+    }
+}
+
+/// An EVT 2.0 / 2.1 decoder's state in the form its common words need (locals of
+/// [`EvtDecoder::evt2`]'s loop).
+struct Evt2Fast {
+    /// `high << 6`: an event's time less its low 6 bits.
+    t_high: i64,
+    /// The sensor's width once the time base is known (without a size, the widest x the
+    /// checks take, plus one); 0 before.
+    x_end: u32,
+    width: u32,
+    /// The sensor's height (without a size, 2^11: any row).
+    height: u32,
+    /// The time-high counter's last value and its periods so far, `epoch · 2^28`; `None`
+    /// before the first (or where the periods would not fit).
+    counter: Option<(u32, i64)>,
+}
+
+impl Evt2Fast {
+    #[inline(always)]
+    fn load(d: &EvtDecoder) -> Self {
+        let (width, height) = match d.size {
+            Some((w, h)) => (u32::from(w), u32::from(h)),
+            None => (1 << 16, 1 << 11),
+        };
+        // Periods from 2^57 µs on are `word2`'s (an overflow): `base + raw` stays in range.
+        let counter = d.high_counter.last().and_then(|raw| {
+            let base = i64::try_from(d.high_counter.wraps())
+                .ok()?
+                .checked_mul(1 << 28)?;
+            (base < 1 << 57).then_some((raw as u32, base))
+        });
+        Self {
+            t_high: d.high.unwrap_or(0) << 6,
+            x_end: if d.high.is_some() { width } else { 0 },
+            width,
+            height,
+            counter,
+        }
+    }
+
+    #[inline(always)]
+    fn store(&self, d: &mut EvtDecoder) {
+        if self.x_end > 0 {
+            d.high = Some(self.t_high >> 6);
+        }
+        if let Some((raw, _)) = self.counter {
+            d.high_counter.set_last(u64::from(raw));
+        }
+    }
+
+    /// Takes a time-high value that steps forward from the last by at most half the counter's
+    /// range, where [`Unwrapper::unwrap`] gives it the current period; false for any other.
+    #[inline(always)]
+    fn forward(&mut self, raw: u32) -> bool {
+        let Some((last, base)) = self.counter else {
+            return false;
+        };
+        let high = base + i64::from(raw);
+        if raw < last || raw - last > 1 << 27 || high >= 1 << 57 {
+            return false;
+        }
+        self.counter = Some((raw, base));
+        self.t_high = high << 6;
+        self.x_end = self.width;
+        true
     }
 }

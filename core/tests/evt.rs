@@ -543,6 +543,132 @@ fn evt3_words() -> impl Strategy<Value = Vec<u16>> {
     prop::collection::vec(word, 0..300)
 }
 
+/// What decoding `bytes` fed in pieces of `chunk` bytes into outputs of `room` events gives:
+/// the events of the calls that succeeded, the first error (its byte index in the whole
+/// stream) and the counts.
+fn decode_pieces(
+    encoding: Encoding,
+    size: Option<(u16, u16)>,
+    bytes: &[u8],
+    chunk: usize,
+    room: usize,
+) -> (Vec<Event>, Option<EvtError>, EvtCounts) {
+    let mut d = EvtDecoder::new(encoding, size);
+    let mut got = Vec::new();
+    let mut out = vec![Event::default(); room];
+    // `start`: the byte index of `pending`'s first byte in the whole stream.
+    let (mut start, mut pending) = (0, Vec::new());
+    for piece in bytes.chunks(chunk) {
+        pending.extend_from_slice(piece);
+        loop {
+            match d.decode(&pending, &mut out) {
+                Ok(p) => {
+                    got.extend_from_slice(&out[..p.events]);
+                    pending.drain(..p.bytes);
+                    start += p.bytes;
+                    if p.bytes == 0 || pending.len() < encoding.word_bytes() {
+                        break;
+                    }
+                }
+                Err(e) => {
+                    // Byte indices are the call's: move them to the stream's.
+                    let e = match e {
+                        EvtError::ReservedType { at, word } => EvtError::ReservedType {
+                            at: at + start,
+                            word,
+                        },
+                        EvtError::OutsideSensor { at, x, y, size } => EvtError::OutsideSensor {
+                            at: at + start,
+                            x,
+                            y,
+                            size,
+                        },
+                        EvtError::WideX { at, x } => EvtError::WideX { at: at + start, x },
+                        EvtError::TimeOverflow { at } => EvtError::TimeOverflow { at: at + start },
+                    };
+                    return (got, Some(e), d.counts());
+                }
+            }
+        }
+    }
+    (got, None, d.counts())
+}
+
+/// EVT 2.0 / 2.1 as the module documentation states it, word by word (an EVT 2.0 word is an
+/// EVT 2.1 upper half with a mask of one event): the oracle for the decoder's common-case loop.
+struct Reference2 {
+    size: Option<(u16, u16)>,
+    high: Option<i64>,
+    counter: Unwrapper,
+    counts: EvtCounts,
+}
+
+impl Reference2 {
+    fn word(
+        &mut self,
+        at: usize,
+        w: u32,
+        mask: u32,
+        word: u64,
+        out: &mut Vec<Event>,
+    ) -> Result<(), EvtError> {
+        match w >> 28 {
+            ty @ (0x0 | 0x1) => {
+                let Some(high) = self.high else {
+                    self.counts.dropped_events += u64::from(mask.count_ones());
+                    return Ok(());
+                };
+                let (x0, y) = ((w >> 11) & 0x7FF, w & 0x7FF);
+                for bit in 0..32 {
+                    if mask & (1 << bit) == 0 {
+                        continue;
+                    }
+                    let x = x0 + bit;
+                    if let Some((sw, sh)) = self.size {
+                        if x >= u32::from(sw) || y >= u32::from(sh) {
+                            return Err(EvtError::OutsideSensor {
+                                at,
+                                x,
+                                y,
+                                size: (sw, sh),
+                            });
+                        }
+                    }
+                    let t = (high << 6) | i64::from((w >> 22) & 0x3F);
+                    out.push(Event::new(x as u16, y as u16, t, ty == 1));
+                }
+            }
+            0x8 => {
+                let high = self.counter.unwrap(u64::from(w & 0x0FFF_FFFF));
+                self.high = Some(
+                    high.filter(|&h| h < 1 << 57)
+                        .ok_or(EvtError::TimeOverflow { at })?,
+                );
+                self.counts.timestamp_wraps = self.counter.wraps();
+            }
+            0xA | 0xE | 0xF => self.counts.skipped_words += 1,
+            _ => return Err(EvtError::ReservedType { at, word }),
+        }
+        Ok(())
+    }
+}
+
+/// Upper halves of EVT 2.0 / 2.1 words of every type on a 64 × 48 sensor's scale (columns and
+/// rows past it included), with masks; time highs stepping forward, back a little, and to
+/// values far away (wraps); reserved types rarely.
+fn evt2_words() -> impl Strategy<Value = Vec<(u32, u32)>> {
+    let mask =
+        prop_oneof![3 => (0u32..32).prop_map(|b| 1 << b), 2 => any::<u32>(), 1 => Just(0u32)];
+    let word = prop_oneof![
+        10 => (0u32..2, 0u32..64, 0u32..72, 0u32..56, mask).prop_map(|(ty, t, x, y, m)| (ty << 28 | t << 22 | x << 11 | y, m)),
+        4 => (0u32..64).prop_map(|d| (0x8 << 28 | (0x0FF_FFF0 + d), 0)),
+        1 => any::<u32>().prop_map(|h| (0x8 << 28 | h & 0x0FFF_FFFF, 0)),
+        1 => prop::sample::select(vec![0xAu32, 0xE, 0xF]).prop_map(|ty| (ty << 28 | 0x123, 7)),
+        1 => prop::sample::select(vec![0x2u32, 0x3, 0x9, 0xB]).prop_map(|ty| (ty << 28, 9)),
+    ];
+    prop::collection::vec(word, 0..300)
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(2_000))]
     /// Any EVT 3.0 words, in pieces of any size into outputs of any room, decode as the
@@ -564,38 +690,7 @@ proptest! {
                 break;
             }
         }
-        let mut d = EvtDecoder::new(Encoding::Evt3, size);
-        let mut got = Vec::new();
-        let mut got_err = None;
-        let mut out = vec![Event::default(); room];
-        // `start`: the byte index of `pending`'s first byte in the whole stream.
-        let (mut start, mut pending) = (0, Vec::new());
-        'feed: for piece in bytes.chunks(chunk) {
-            pending.extend_from_slice(piece);
-            loop {
-                match d.decode(&pending, &mut out) {
-                    Ok(p) => {
-                        got.extend_from_slice(&out[..p.events]);
-                        pending.drain(..p.bytes);
-                        start += p.bytes;
-                        if p.bytes == 0 || pending.len() < 2 {
-                            break;
-                        }
-                    }
-                    Err(e) => {
-                        got_err = Some(e);
-                        break 'feed;
-                    }
-                }
-            }
-        }
-        // Byte indices are the call's: move them to the stream's.
-        let got_err = got_err.map(|e| match e {
-            EvtError::ReservedType { at, word } => EvtError::ReservedType { at: at + start, word },
-            EvtError::OutsideSensor { at, x, y, size } => EvtError::OutsideSensor { at: at + start, x, y, size },
-            EvtError::WideX { at, x } => EvtError::WideX { at: at + start, x },
-            EvtError::TimeOverflow { at } => EvtError::TimeOverflow { at: at + start },
-        });
+        let (got, got_err, counts) = decode_pieces(Encoding::Evt3, size, &bytes, chunk, room);
         prop_assert_eq!(got_err, want_err);
         if want_err.is_none() {
             prop_assert_eq!(&got, &want);
@@ -603,6 +698,47 @@ proptest! {
             // Events of the failing call's earlier words are in `out` but not reported.
             prop_assert!(want.starts_with(&got));
         }
-        prop_assert_eq!(d.counts(), reference.counts);
+        prop_assert_eq!(counts, reference.counts);
+    }
+
+    /// Any EVT 2.0 and EVT 2.1 words (both byte orders), in pieces of any size into outputs of
+    /// any room, decode as the word-by-word reference decodes them.
+    #[test]
+    fn evt2_and_evt21_match_the_word_by_word_reference(
+        words in evt2_words(),
+        size in prop::sample::select(vec![Some((64u16, 48u16)), None]),
+        chunk in 1usize..64,
+        room in 32usize..80,
+    ) {
+        for encoding in [Encoding::Evt2, Encoding::Evt21, Encoding::Evt21Legacy] {
+            let mut reference = Reference2 { size, high: None, counter: Unwrapper::new(28), counts: EvtCounts::default() };
+            let mut want = Vec::new();
+            let mut want_err = None;
+            let mut bytes = Vec::new();
+            for &(w, mask) in &words {
+                let (mask, word) = match encoding {
+                    Encoding::Evt2 => (1, u64::from(w)),
+                    _ => (mask, u64::from(w) << 32 | u64::from(mask)),
+                };
+                let at = bytes.len();
+                match encoding {
+                    Encoding::Evt2 => bytes.extend(w.to_le_bytes()),
+                    e => bytes.extend(evt21_word(w, mask, e == Encoding::Evt21Legacy)),
+                }
+                if want_err.is_none() {
+                    if let Err(e) = reference.word(at, w, mask, word, &mut want) {
+                        want_err = Some(e);
+                    }
+                }
+            }
+            let (got, got_err, counts) = decode_pieces(encoding, size, &bytes, chunk, room);
+            prop_assert_eq!(got_err, want_err, "{:?}", encoding);
+            if want_err.is_none() {
+                prop_assert_eq!(&got, &want);
+            } else {
+                prop_assert!(want.starts_with(&got));
+            }
+            prop_assert_eq!(counts, reference.counts);
+        }
     }
 }

@@ -335,28 +335,34 @@ impl Read for Trickle<'_> {
     }
 }
 
-/// What [`check_evt3`] found.
-pub struct Evt3Check {
-    /// Events the EVT 3.0 words gave.
+/// What [`check_evt`] found.
+pub struct EvtCheck {
+    /// Events the words gave.
     pub events: u32,
     /// Events that differ from the `EVS1` stream's (and decoding errors).
     pub mismatches: u32,
-    /// Clock ticks spent in the EVT 3.0 decoder.
+    /// Clock ticks spent in the decoder.
     pub ticks: u64,
 }
 
-/// Bytes of EVT 3.0 words handed to the decoder at a time (a DMA buffer's worth); odd, so that
+/// Bytes of sensor words handed to the decoder at a time (a DMA buffer's worth); odd, so that
 /// pieces end inside words and the decoder's unused tail goes back with the next piece.
-const EVT3_PIECE: usize = 511;
+const EVT_PIECE: usize = 511;
 
-/// Boot check of the core's EVT 3.0 decoder (`evpose_core::evt`, what a Prophesee sensor
-/// streams) on the real instructions: `words` are EVT 3.0 words of the recording's first
-/// events, written by faery (an independent encoder; `scripts/third-party-formats.py
-/// --firmware-asset`), decoded [`EVT3_PIECE`] bytes at a time into batches of 64 and compared
-/// with the `EVS1` stream `evs` event by event (times from each stream's first event); fewer
-/// or more than `expected` events count as a mismatch too.
-pub fn check_evt3(evs: &'static [u8], words: &'static [u8], expected: u32) -> Evt3Check {
-    let mut check = Evt3Check {
+/// Boot check of the core's EVT decoder (`evpose_core::evt`, what a Prophesee sensor streams)
+/// on the real instructions: `words` are the recording's first events in `encoding`, written by
+/// an independent encoder (EVT 3.0: faery, `scripts/third-party-formats.py --firmware-asset`;
+/// EVT 2.1 in a GenX320's byte order: evutils, `scripts/evt21-engines.py --firmware-asset`),
+/// decoded [`EVT_PIECE`] bytes at a time into batches of 64 and compared with the `EVS1` stream
+/// `evs` event by event (times from each stream's first event); fewer or more than `expected`
+/// events count as a mismatch too.
+pub fn check_evt(
+    encoding: Encoding,
+    evs: &'static [u8],
+    words: &'static [u8],
+    expected: u32,
+) -> EvtCheck {
+    let mut check = EvtCheck {
         events: 0,
         mismatches: 0,
         ticks: 0,
@@ -365,12 +371,12 @@ pub fn check_evt3(evs: &'static [u8], words: &'static [u8], expected: u32) -> Ev
         check.mismatches += 1;
         return check;
     };
-    let mut decoder = EvtDecoder::new(Encoding::Evt3, Some((346, 260)));
+    let mut decoder = EvtDecoder::new(encoding, Some((346, 260)));
     let mut batch = [Event::default(); 64];
     let mut first = None;
     let mut rest = words;
     while !rest.is_empty() {
-        let piece = rest.get(..EVT3_PIECE.min(rest.len())).unwrap_or_default();
+        let piece = rest.get(..EVT_PIECE.min(rest.len())).unwrap_or_default();
         let start = crate::clock::ticks();
         let decoded = decoder.decode(piece, &mut batch);
         check.ticks += crate::clock::ticks() - start;

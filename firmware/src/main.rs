@@ -32,6 +32,7 @@ use cortex_m_rt::entry;
 use defmt::println;
 use defmt_semihosting as _;
 
+use evpose_core::evt::Encoding;
 use evpose_core::kernels::{self, Kernels};
 use evpose_core::model::{DType, ModelError, FEATURES};
 use evpose_core::pipeline::{Digest, Estimate, PipelineError, Profiler, Step, I8};
@@ -66,9 +67,12 @@ static MODEL: Aligned<[u8; include_bytes!("../../models/mcu.evq").len()]> =
 static EVENTS: [u8; include_bytes!("../assets/street-00-02.evs").len()] =
     *include_bytes!("../assets/street-00-02.evs");
 /// The first window's events as EVT 3.0 words (what a Prophesee sensor streams), for the boot
-/// check of the core's EVT decoder (`input::check_evt3`).
+/// check of the core's EVT decoder (`input::check_evt`).
 static EVT3: [u8; include_bytes!("../assets/street-00.evt3").len()] =
     *include_bytes!("../assets/street-00.evt3");
+/// The same events as EVT 2.1 words in a GenX320's byte order (its default encoding).
+static EVT21: [u8; include_bytes!("../assets/street-00.evt21").len()] =
+    *include_bytes!("../assets/street-00.evt21");
 
 /// Every working buffer of the pipeline but the rasterizer's.
 struct Buffers {
@@ -170,16 +174,23 @@ fn main() -> ! {
         defmt::error!("the batch event decoder disagrees with the per-event one");
         exit(3)
     }
-    // The asset holds the first window's events.
-    let evt3 = input::check_evt3(&EVENTS, &EVT3, 7_500);
+    // The assets hold the first window's events.
+    let evt3 = input::check_evt(Encoding::Evt3, &EVENTS, &EVT3, 7_500);
     println!(
         "evt3: events={=u32} mismatches={=u32} instructions={=u64}",
         evt3.events,
         evt3.mismatches,
         evt3.ticks * per_tick
     );
-    if evt3.mismatches > 0 {
-        defmt::error!("the core's EVT 3.0 decoder disagrees with the EVS1 stream");
+    let evt21 = input::check_evt(Encoding::Evt21, &EVENTS, &EVT21, 7_500);
+    println!(
+        "evt21: events={=u32} mismatches={=u32} instructions={=u64}",
+        evt21.events,
+        evt21.mismatches,
+        evt21.ticks * per_tick
+    );
+    if evt3.mismatches > 0 || evt21.mismatches > 0 {
+        defmt::error!("the core's EVT decoder disagrees with the EVS1 stream");
         exit(3)
     }
     if check.mismatches > 0 {
