@@ -21,13 +21,13 @@ def report(name, ok, detail=""):
 
 def evpose_read(evpose, path, *extra):
     """The events `evpose convert` reads from `path`, as an int64 (N, 4) [x, y, t_us, p] array
-    (None and the first line of its error where it fails)."""
+    (None and the last line of its error, the cause, where it fails)."""
     with tempfile.TemporaryDirectory() as d:
         out = pathlib.Path(d) / "e.npy"
         r = subprocess.run([evpose, "convert", str(path), "--out", str(out), *extra],
                            capture_output=True, text=True)
         if r.returncode != 0:
-            return None, r.stderr.strip().splitlines()[0]
+            return None, r.stderr.strip().splitlines()[-1].strip()
         return np.load(out).astype(np.int64), ""
 
 

@@ -142,11 +142,11 @@ def main():
         evutils_write(street, (346, 260), legacy)
         little = d / "street.evt21-little.raw"
         to_little(legacy, little)
-        compare("evutils writes, evpose reads (legacy)", *evpose_read(a.evpose, legacy)[:1],
-                street)
+        got, why = evpose_read(a.evpose, legacy)
+        compare("evutils writes, evpose reads (legacy)", got, street, why)
         compare("evutils writes, evutils reads (legacy)", evutils_read(legacy), street)
-        compare("halves swapped, evpose reads (little)", *evpose_read(a.evpose, little)[:1],
-                street)
+        got, why = evpose_read(a.evpose, little)
+        compare("halves swapped, evpose reads (little)", got, street, why)
         compare("halves swapped, evlib reads (little)", evlib_read(little), street)
 
         words = built_stream(1, 20_000)

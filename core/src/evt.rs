@@ -279,7 +279,8 @@ impl EvtDecoder {
     }
 
     /// Decodes whole words of `bytes` into `out` while a word's events still fit (one per
-    /// EVT 2.0 word, up to 12 per EVT 3.0 word); returns the bytes used and events written.
+    /// EVT 2.0 word, up to 32 per EVT 2.1 word, up to 12 per EVT 3.0 word); returns the bytes
+    /// used and events written.
     /// An `out` shorter than [`Encoding::max_events_per_word`] takes no word (`bytes: 0`).
     pub fn decode(&mut self, bytes: &[u8], out: &mut [Event]) -> Result<Progress, EvtError> {
         let room = out.len();
@@ -324,7 +325,7 @@ impl EvtDecoder {
     /// half comes first.
     ///
     /// The common case runs on locals ([`Evt2Fast`]): events of a known time inside the
-    /// sensor, and time-high words that step forward by less than half the counter's range.
+    /// sensor, and time-high words that step forward by at most half the counter's range.
     /// Every other word goes through [`EvtDecoder::word2`] with the state written back first
     /// and read again after; none of those gives an event, so `emit` stays in registers.
     fn evt2<const W: usize, const LEGACY: bool>(
@@ -407,7 +408,7 @@ impl EvtDecoder {
     /// An EVT 2.0 / 2.1 word outside [`EvtDecoder::evt2`]'s common case, at byte `at` (`w`: its
     /// upper half, `mask`: its events, `word`: the whole word): events before the time base
     /// (dropped) or outside the sensor (an error), a time-high word that does not step forward
-    /// by less than half the range (a wrap, or the first), a skipped or reserved word. Gives no
+    /// by at most half the range (a wrap, or the first), a skipped or reserved word. Gives no
     /// event.
     #[inline(never)]
     fn word2(&mut self, at: usize, w: u32, mask: u32, word: u64) -> Result<(), EvtError> {

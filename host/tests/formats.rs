@@ -970,6 +970,32 @@ fn evt21_byte_order_follows_openeb() {
         order(&["format EVT21", "system_ID 64"], Format::Raw).0,
         Format::Evt21
     );
+    // OpenEB's `get_system_id`: -1 when missing (legacy for a Prophesee header), the leading
+    // digits of `49abc`, 0 for `0x31` (whole words).
+    let (f, n) = order(&["format EVT21"], Format::Raw);
+    assert_eq!(f, Format::Evt21Legacy);
+    assert!(n.contains("without a `% system_ID`"), "{n}");
+    assert_eq!(
+        order(&["format EVT21", "system_ID 49abc"], Format::Raw).0,
+        Format::Evt21Legacy
+    );
+    assert_eq!(
+        order(&["format EVT21", "system_ID 0x31"], Format::Raw).0,
+        Format::Evt21
+    );
+    // As OpenEB compares them: exactly `legacy`; the last option; an option without `=` is
+    // empty (whole words); an empty `% endianness` line is no statement.
+    assert_eq!(
+        order(&["format EVT21;endianness=Legacy"], Format::Raw).0,
+        Format::Evt21
+    );
+    let last = ["format EVT21;endianness=little;endianness=legacy"];
+    assert_eq!(order(&last, Format::Raw).0, Format::Evt21Legacy);
+    let bare = ["format EVT21;endianness", "system_ID 49"];
+    let (f, n) = order(&bare, Format::Raw);
+    assert!(f == Format::Evt21 && !n.contains("EVT 2.1"), "{n}");
+    let empty = ["format EVT21", "endianness", "system_ID 49"];
+    assert_eq!(order(&empty, Format::Raw).0, Format::Evt21Legacy);
     // --format overrides, on record.
     let (f, n) = order(&["format EVT21;endianness=legacy"], Format::Evt21);
     assert_eq!(f, Format::Evt21);

@@ -39,9 +39,12 @@
 //! Byte order: a GenX320 writes each word little-endian as a whole (`evt21`); an IMX636 writes
 //! bits 32–63 first, then bits 0–31, each half little-endian (`evt21-legacy`, OpenEB's
 //! `legacy` endianness). The header says which in an `endianness=` option of `% format EVT21;…`
-//! or an `% endianness` line; without either, OpenEB reads `legacy` for a Prophesee camera
-//! whose `% system_ID` is below 0x37 (the IMX636 and Gen4 EVKs) and whole words otherwise, and
-//! so does this reader, with a note saying which.
+//! or an `% endianness` line (exactly `legacy`: upper half first; any other value: whole
+//! words); without either, OpenEB reads `legacy` for a Prophesee camera whose `% system_ID` is
+//! not 0 and below 0x37 (the IMX636 and Gen4 EVKs; a missing or unreadable one counts as -1)
+//! and whole words otherwise, and so does this reader, with a note saying which. A header with
+//! `% evt 2.1` but no `% format` line is read too (OpenEB takes `% evt` only for the old
+//! systems it knows).
 //!
 //! # EVT 3.0
 //!
@@ -214,49 +217,59 @@ impl PercentHeader {
     }
 
     /// EVT 2.1's byte order as OpenEB decides it (`psee_raw_file_header.cpp`,
-    /// `make_decoder.cpp`): the `endianness=` option of `% format`, else an `% endianness` line,
-    /// else `legacy` for a Prophesee camera whose `% system_ID` is below 0x37 (the IMX636 and
-    /// Gen4 EVKs), else little-endian; `legacy` reads upper halves first, anything else whole
-    /// words. A note says which when the header did not state it.
+    /// `make_decoder.cpp`): the `endianness=` option of `% format` (the last one; without `=`,
+    /// empty), else a non-empty `% endianness` line, else `legacy` for a Prophesee camera whose
+    /// `% system_ID` is not 0 and below 0x37 (the IMX636 and Gen4 EVKs; read as C's `strtol`
+    /// reads it, and -1 when missing or not a number), else whole words. Exactly `legacy` reads
+    /// upper halves first; any other value, whole words. A note says which when the header did
+    /// not state it.
     fn evt21_order(&self) -> (Encoding, Option<String>) {
         let option = self.get("format").and_then(|f| {
-            f.split(';').skip(1).find_map(|opt| {
-                let (k, v) = opt.split_once('=')?;
-                k.trim()
-                    .eq_ignore_ascii_case("endianness")
-                    .then(|| v.trim().to_string())
-            })
+            f.split(';')
+                .skip(1)
+                .filter_map(|opt| {
+                    let (k, v) = opt.split_once('=').unwrap_or((opt, ""));
+                    (k.trim() == "endianness").then(|| v.trim().to_string())
+                })
+                .last()
         });
-        let stated = option.or_else(|| self.get("endianness").map(|v| v.trim().to_string()));
-        if let Some(order) = stated {
-            let enc = if order.eq_ignore_ascii_case("legacy") {
+        let line = || {
+            self.get("endianness")
+                .map(str::trim)
+                .filter(|v| !v.is_empty())
+                .map(str::to_string)
+        };
+        if let Some(order) = option.or_else(line) {
+            let enc = if order == "legacy" {
                 Encoding::Evt21Legacy
             } else {
                 Encoding::Evt21
             };
             return (enc, None);
         }
-        let id = self
-            .get("system_id")
-            .and_then(|v| v.trim().parse::<u32>().ok());
-        match id {
-            Some(id) if (1..0x37).contains(&id) && self.prophesee_integrated() => (
+        let id = self.get("system_id").map_or(-1, leading_integer);
+        if id != 0 && id < 0x37 && self.prophesee_integrated() {
+            let why = match self.get("system_id") {
+                Some(v) => format!("`% system_ID {v}`"),
+                None => "a Prophesee header without a `% system_ID`".into(),
+            };
+            return (
                 Encoding::Evt21Legacy,
                 Some(format!(
                     "EVT 2.1 words read upper half first (an IMX636's order, OpenEB's `legacy`), \
-                     as OpenEB reads `% system_ID {id}` with no endianness stated; --format \
-                     evt21 reads whole little-endian words"
+                     as OpenEB reads {why} with no endianness stated; --format evt21 reads whole \
+                     little-endian words"
                 )),
-            ),
-            _ => (
-                Encoding::Evt21,
-                Some(
-                    "EVT 2.1 words read little-endian whole (a GenX320's order; the header \
-                     states no endianness); --format evt21-legacy reads an IMX636's"
-                        .into(),
-                ),
-            ),
+            );
         }
+        (
+            Encoding::Evt21,
+            Some(
+                "EVT 2.1 words read little-endian whole (a GenX320's order; the header states no \
+                 endianness); --format evt21-legacy reads an IMX636's"
+                    .into(),
+            ),
+        )
     }
 
     /// A camera name from the integrator, serial number or plugin lines.
@@ -297,6 +310,18 @@ pub(crate) fn detect_percent_header(head: &[u8]) -> Format {
         _ if !rest.is_empty() && text::looks_like_text(rest) => Format::Text,
         _ => Format::Dat,
     }
+}
+
+/// The integer at the start of `v` as C's `strtol` reads it (leading spaces, a sign, decimal
+/// digits; -1 where there are none, as OpenEB's `get_system_id` answers then).
+fn leading_integer(v: &str) -> i64 {
+    let v = v.trim_start();
+    let (sign, digits) = match v.strip_prefix('-') {
+        Some(rest) => (-1, rest),
+        None => (1, v.strip_prefix('+').unwrap_or(v)),
+    };
+    let end = digits.bytes().take_while(u8::is_ascii_digit).count();
+    digits[..end].parse::<i64>().map_or(-1, |n| sign * n)
 }
 
 /// The format an encoding reads as.
@@ -344,7 +369,7 @@ impl<R: Read> EvtReader<R> {
                         "the header says `{name}`{}, which --format {} overrides",
                         match e {
                             Some(e @ (Encoding::Evt21 | Encoding::Evt21Legacy)) =>
-                                format!(" (read as {})", format_of(e).name()),
+                                format!(" (its byte order: {})", format_of(e).name()),
                             _ => String::new(),
                         },
                         format.name()
@@ -376,7 +401,7 @@ impl<R: Read> EvtReader<R> {
             (Some(s), _) => (Some(s), false),
             (None, Some(((w, h), sensor))) => {
                 notes.assumptions.push(format!(
-                    "sensor size {w}x{h} from `% system_ID {}` (a {sensor} camera, as OpenEB \
+                    "sensor size {w}x{h} from `% system_ID {}` ({sensor} sensor, as OpenEB \
                      reads a header without a size; --width/--height override it)",
                     header.get("system_id").unwrap_or_default()
                 ));
@@ -418,7 +443,8 @@ impl<R: Read> EvtReader<R> {
     fn fill(&mut self, batch: &mut Batch) -> Result<(), ReadError> {
         let encoding = self.decoder.encoding();
         let word = encoding.word_bytes();
-        // Stop while a whole word's events (an EVT 3.0 vector: 12) still fit the batch.
+        // Stop while a whole word's events (a vector: 12 in EVT 3.0, 32 in EVT 2.1) still fit
+        // the batch.
         while batch.len() + encoding.max_events_per_word() <= BATCH_EVENTS {
             let have = self.src.fill(word)?;
             if have < word {

@@ -423,7 +423,7 @@ pub fn open(path: &Path, format: Option<Format>) -> anyhow::Result<Box<dyn Event
 /// [`DETECT_BYTES`] unless given), a fallback sensor size and the text time unit.
 ///
 /// A detected `dat` whose file name ends in `.raw` is opened as `raw` (old Prophesee RAW files
-/// may lack the `% evt` line; the RAW reader then asks for `--format evt2|evt21|evt3`).
+/// may lack the `% evt` line; the RAW reader then asks for `--format evt2|evt21|evt21-legacy|evt3`).
 pub fn open_with(path: &Path, opts: &OpenOptions) -> anyhow::Result<Box<dyn EventReader>> {
     use anyhow::Context;
     let file = BufReader::with_capacity(
