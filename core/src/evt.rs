@@ -695,7 +695,8 @@ fn halves<const W: usize, const LEGACY: bool>(b: &[u8; W]) -> (u32, u32) {
 /// An EVT 2.0 / 2.1 decoder's state in the form its common words need (locals of
 /// [`EvtDecoder::evt2`]'s loop).
 struct Evt2Fast {
-    /// `high << 6`: an event's time less its low 6 bits.
+    /// `high << 6`: an event's time less its low 6 bits; -1 while the time base is not known
+    /// (times are never negative).
     t_high: i64,
     /// The sensor's width once the time base is known (without a size, the widest x the
     /// checks take, plus one); 0 before.
@@ -723,7 +724,7 @@ impl Evt2Fast {
             (base < 1 << 57).then_some((raw as u32, base))
         });
         Self {
-            t_high: d.high.unwrap_or(0) << 6,
+            t_high: d.high.map_or(-1, |h| h << 6),
             x_end: if d.high.is_some() { width } else { 0 },
             width,
             height,
@@ -733,7 +734,7 @@ impl Evt2Fast {
 
     #[inline(always)]
     fn store(&self, d: &mut EvtDecoder) {
-        if self.x_end > 0 {
+        if self.t_high >= 0 {
             d.high = Some(self.t_high >> 6);
         }
         if let Some((raw, _)) = self.counter {

@@ -159,7 +159,8 @@ impl PercentHeader {
         }
         let vga = (640, 480);
         let hd = (1280, 720);
-        Some(match self.get("system_id")?.trim().parse::<u32>().ok()? {
+        // The leading digits, as OpenEB's `get_system_id` reads them.
+        Some(match leading_integer(self.get("system_id")?) {
             21 | 23 | 25 | 29 | 33 | 151 | 153 | 161 => (vga, "Gen3.0"),
             28 | 34 | 35 | 40 | 41 | 162 => (vga, "Gen3.1"),
             26 | 30 | 31 | 46 => (hd, "Gen4.0"),
