@@ -27,6 +27,10 @@
 //! runs the M4 build's instructions (ARMv8-M Mainline with the DSP extension), not a build of
 //! its own.
 //! Caches and flash wait states are not modelled.
+//!
+//! The input stage is the firmware's own `EVS1` stream by default; `--input evt3|evt21` takes
+//! the core's decoding of a Prophesee sensor's words instead ([`Input`]), as the boot check
+//! measured it on both builds (the M4 build's own counts for the M4 and M33).
 
 use anyhow::{anyhow, bail, Result};
 use serde::{Deserialize, Serialize};
@@ -47,6 +51,18 @@ pub struct Measured {
     pub window_events: u64,
     /// Reading the firmware's input stream (`EVS1` words → events), instructions per event.
     pub instructions_per_input_event: f64,
+    /// Decoding a Prophesee sensor's EVT 3.0 words ([`evpose_core::evt`]), instructions per
+    /// event: the boot check's words of the first street window (faery's; 2.9 words an event,
+    /// as sparse events rarely share a row; a denser scene's vectors cost less per event).
+    pub instructions_per_evt3_event: f64,
+    /// Decoding EVT 2.1 words in a GenX320's byte order, instructions per event: the boot
+    /// check's (evutils's words; one event each, and a time-high word per 64 µs with events:
+    /// 1.37 words an event).
+    pub instructions_per_evt21_event: f64,
+    /// EVT 3.0 decoding in the firmware built for the Cortex-M4, instructions per event.
+    pub instructions_per_evt3_event_without_arm_fpv5: f64,
+    /// EVT 2.1 decoding in the firmware built for the Cortex-M4, instructions per event.
+    pub instructions_per_evt21_event_without_arm_fpv5: f64,
     /// Rasterization, instructions per event (window close included).
     pub instructions_per_event: f64,
     /// Rasterization on a core without the M7's FPU (M4, M33): the firmware built for the
@@ -170,6 +186,33 @@ impl std::fmt::Display for Target {
     }
 }
 
+/// The stream an MCU reads its events from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Input {
+    /// The firmware's own `EVS1` words (what its QEMU runs read; 4 bytes an event).
+    #[default]
+    Evs1,
+    /// A Prophesee sensor's EVT 3.0 words (an IMX636's default encoding), decoded by the core.
+    Evt3,
+    /// EVT 2.1 words in a GenX320's byte order (its default encoding), decoded by the core.
+    Evt21,
+}
+
+impl Input {
+    /// Instructions per event on a core with (`fpv5`: the M7's build) or without it.
+    pub fn per_event(self, k: &Measured, fpv5: bool) -> f64 {
+        match (self, fpv5) {
+            // The M4 build's EVS1 decoding was within 5 % of the M7's (module documentation).
+            (Input::Evs1, _) => k.instructions_per_input_event,
+            (Input::Evt3, true) => k.instructions_per_evt3_event,
+            (Input::Evt3, false) => k.instructions_per_evt3_event_without_arm_fpv5,
+            (Input::Evt21, true) => k.instructions_per_evt21_event,
+            (Input::Evt21, false) => k.instructions_per_evt21_event_without_arm_fpv5,
+        }
+    }
+}
+
 /// The point layers' weights an estimate assumes.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
@@ -190,6 +233,8 @@ pub struct Latency {
     pub target: String,
     /// The point layers' weights assumed.
     pub weights: Weights,
+    /// The input stream assumed.
+    pub input_stream: Input,
     /// Cycles per instruction assumed.
     pub cpi: f64,
     /// Instructions per window, by stage: reading the input.
@@ -214,11 +259,12 @@ pub struct Latency {
     pub max_real_time_points: u64,
 }
 
-/// The cost of one window of `window_events` events through the model of `m` (at `m.points`
-/// points) on `target` with the point layers over `weights`, from the per-unit costs `k`.
+/// The cost of one window of `window_events` events read from `input` through the model of `m`
+/// (at `m.points` points) on `target` with the point layers over `weights`, from the per-unit
+/// costs `k`.
 pub fn estimate(
     m: &ModelBudget,
-    window_events: u64,
+    (window_events, input): (u64, Input),
     k: &Measured,
     target: Target,
     weights: Weights,
@@ -237,7 +283,8 @@ pub fn estimate(
     };
     let per_point = point_mac * m.macs_per_point as f64 + k.instructions_per_sampled_point;
     let bins = (m.joints * (m.width + m.height)) as f64;
-    let input = k.instructions_per_input_event * window_events as f64;
+    let input_stream = input;
+    let input = input_stream.per_event(k, fpv5) * window_events as f64;
     let per_event = if fpv5 {
         k.instructions_per_event
     } else {
@@ -261,6 +308,7 @@ pub fn estimate(
     Latency {
         target: target.to_string(),
         weights,
+        input_stream,
         cpi: target.core.cpi(),
         input,
         rasterize,
@@ -306,6 +354,10 @@ mod tests {
             model: "test".into(),
             window_events: 100,
             instructions_per_input_event: 1.0,
+            instructions_per_evt3_event: 4.0,
+            instructions_per_evt21_event: 6.0,
+            instructions_per_evt3_event_without_arm_fpv5: 5.0,
+            instructions_per_evt21_event_without_arm_fpv5: 7.0,
             instructions_per_event: 10.0,
             instructions_per_event_without_arm_fpv5: 30.0,
             instructions_per_point_mac: 2.0,
@@ -323,7 +375,7 @@ mod tests {
         let model = evpose_core::Model::parse(blob.bytes()).unwrap();
         let m = crate::budget::model_budget(&model, 256);
         let t: Target = "cortex-m7@480".parse().unwrap();
-        let l = estimate(&m, 7500, &k, t, Weights::Widened);
+        let l = estimate(&m, (7500, Input::Evs1), &k, t, Weights::Widened);
         let bins = (m.joints * (m.width + m.height)) as f64;
         let want = 7500.0 * 11.0
             + 50.0
@@ -341,23 +393,32 @@ mod tests {
         assert!((l.ms - want / 480e3).abs() < 1e-9);
         // The M4 takes the M4 build's costs: the rasterizer's and the per-MAC ones.
         let t4: Target = "cortex-m4@240".parse().unwrap();
-        let m4 = estimate(&m, 7500, &k, t4, Weights::Widened);
+        let m4 = estimate(&m, (7500, Input::Evs1), &k, t4, Weights::Widened);
         let want4 =
             want + 7500.0 * 20.0 + (m.macs_per_point * 256) as f64 + m.macs_after_pooling as f64;
         assert!((m4.ms - want4 * 1.25 / 240e3).abs() < 1e-9);
         // Over row-major weights the point layers take their own per-MAC costs, with and
         // without the FPv5 requantization; nothing else changes.
         let point = (m.macs_per_point * 256) as f64;
-        let rm = estimate(&m, 7500, &k, t, Weights::RowMajor);
+        let rm = estimate(&m, (7500, Input::Evs1), &k, t, Weights::RowMajor);
         assert!((rm.instructions - (want + 0.5 * point)).abs() < 1e-6);
         assert_eq!(rm.weights, Weights::RowMajor);
-        let rm4 = estimate(&m, 7500, &k, t4, Weights::RowMajor);
+        let rm4 = estimate(&m, (7500, Input::Evs1), &k, t4, Weights::RowMajor);
         assert!((rm4.ms - (want4 + 0.5 * point) * 1.25 / 240e3).abs() < 1e-9);
+        // A Prophesee sensor's words change the input stage alone: the M7's decoding costs on
+        // the M7, the M4 build's on the M4.
+        for (input, m7, m4) in [(Input::Evt3, 4.0, 5.0), (Input::Evt21, 6.0, 7.0)] {
+            let e7 = estimate(&m, (7500, input), &k, t, Weights::Widened);
+            assert!((e7.instructions - (want + 7500.0 * (m7 - 1.0))).abs() < 1e-6);
+            assert_eq!((e7.input, e7.input_stream), (7500.0 * m7, input));
+            let e4 = estimate(&m, (7500, input), &k, t4, Weights::Widened);
+            assert!((e4.ms - (want4 + 7500.0 * (m4 - 1.0)) * 1.25 / 240e3).abs() < 1e-9);
+        }
         // At the largest real-time count the window fits in 36 ms; one point more does not.
         let at = |n: u64| {
             let mut mb = m.clone();
             mb.points = n;
-            estimate(&mb, 7500, &k, t, Weights::Widened).ms
+            estimate(&mb, (7500, Input::Evs1), &k, t, Weights::Widened).ms
         };
         let n = l.max_real_time_points;
         assert!(

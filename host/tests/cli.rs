@@ -660,6 +660,14 @@ fn budget_estimates_latency_per_target() {
     assert_eq!(rm["weights"], "row-major");
     assert!(rm["infer"].as_f64().unwrap() > l[0]["infer"].as_f64().unwrap());
     assert_eq!(rm["rasterize"], l[0]["rasterize"]);
+    // A Prophesee sensor's EVT 2.1 words cost more to read than the firmware's EVS1 words (the
+    // QEMU counts of the boot check), and only the input stage changes.
+    let e = json(&["budget", "--model", s(&model), "--input", "evt21", "--json"]);
+    let e = &e["latency"][0];
+    assert_eq!(e["input_stream"], "evt21");
+    assert!(e["input"].as_f64().unwrap() > l[0]["input"].as_f64().unwrap());
+    assert_eq!(e["rasterize"], l[0]["rasterize"]);
+    assert_eq!(l[0]["input_stream"], "evs1");
     assert!(evpose_err(&[
         "budget",
         "--model",

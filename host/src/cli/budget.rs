@@ -7,7 +7,7 @@ use clap::Args;
 use evpose_core::model::Model;
 
 use crate::budget::{default_elf, image_budget, model_budget, Budget, ImageBudget, ModelBudget};
-use crate::latency::{self, Latency, Measured, Target, Weights, REAL_TIME_MS};
+use crate::latency::{self, Input, Latency, Measured, Target, Weights, REAL_TIME_MS};
 use crate::model;
 
 /// Arguments of `evpose budget`.
@@ -32,6 +32,11 @@ pub struct BudgetArgs {
     /// twice the int8 point layers' bytes in RAM) or `row-major` (no extra RAM).
     #[arg(long, value_enum, default_value_t = Weights::Widened)]
     pub weights: Weights,
+    /// The stream the MCU reads events from, for the input's cost: `evs1` (the firmware's own
+    /// words), `evt3` (a Prophesee IMX636's EVT 3.0) or `evt21` (a GenX320's EVT 2.1), each as
+    /// decoded under QEMU at boot (per event, on the street window's words).
+    #[arg(long, value_enum, default_value_t = Input::Evs1)]
+    pub input: Input,
     /// Events per window, for the rasterization cost.
     #[arg(long, default_value_t = u64::from(evpose_core::raster::DEFAULT_WINDOW_EVENTS))]
     pub window_events: u64,
@@ -57,7 +62,10 @@ pub fn budget(a: &BudgetArgs) -> Result<()> {
     let latency = if m.dtype() == evpose_core::DType::I8 {
         a.target
             .iter()
-            .map(|&t| latency::estimate(&mb, a.window_events, &measured, t, a.weights))
+            .map(|&t| {
+                let events = (a.window_events, a.input);
+                latency::estimate(&mb, events, &measured, t, a.weights)
+            })
             .collect()
     } else {
         if !a.json {
@@ -81,7 +89,7 @@ pub fn budget(a: &BudgetArgs) -> Result<()> {
         print_latency(
             &b.latency,
             &measured,
-            (a.window_events, b.model.points),
+            (a.window_events, b.model.points, a.input),
             (a.weights, b.model.widened_bytes),
         );
         match &b.image {
@@ -158,7 +166,7 @@ fn print_model(path: &Path, m: &ModelBudget) {
 fn print_latency(
     list: &[Latency],
     k: &Measured,
-    (events, points): (u64, u64),
+    (events, points, input): (u64, u64, Input),
     (weights, widened_bytes): (Weights, usize),
 ) {
     if list.is_empty() {
@@ -195,6 +203,17 @@ fn print_latency(
         k.instructions_per_event_without_arm_fpv5,
         point_m4,
         k.instructions_per_vector_mac_without_arm_fpv5
+    );
+    let stream = match input {
+        Input::Evs1 => "the firmware's EVS1 words",
+        Input::Evt3 => "EVT 3.0 words (a Prophesee IMX636's)",
+        Input::Evt21 => "EVT 2.1 words (a GenX320's)",
+    };
+    println!(
+        "input: {stream}, {:.1} instructions per event ({:.1} in the M4 build; --input \
+         evs1|evt3|evt21)",
+        input.per_event(k, true),
+        input.per_event(k, false)
     );
     println!(
         "{:<18} {:>4} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7}  {:>8}  verdict ({REAL_TIME_MS} ms)   max points",
