@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""evpose's EVT 2.1 reading against independent engines, in both byte orders: evutils (reads and
+"""evpose's EVT 2.1 reading and writing against independent engines, in both byte orders: evutils (reads and
 writes the IMX636's order, OpenEB's `legacy`: each 64-bit word's upper half first) and evlib
 (reads the GenX320's order: each word little-endian as a whole). faery 0.7.1 and expelliarmus
 1.1.12 have no EVT 2.1, and no public repository holds a real EVT 2.1 recording, so:
@@ -9,6 +9,8 @@ writes the IMX636's order, OpenEB's `legacy`: each 64-bit word's upper half firs
    equal the ones written, exactly. The same words with their halves swapped (and the header's
    endianness changed: this script's only edit) are the GenX320's order: evpose and evlib read
    them.
+   evpose writes the street recording in both orders (`convert --encoding evt21|evt21-legacy`):
+   evutils reads the legacy file, evlib the other, and evpose both, as the events given.
 2. A stream built here word by word from the format's description (time highs, vectors of
    random 32-bit masks at columns aligned to 32 or not, triggers, OTHERS words, a wrap of the
    28-bit time-high counter), in both byte orders: evutils decodes the legacy file, evlib the
@@ -30,6 +32,7 @@ Exit status 1 when any comparison fails.
 import argparse
 import pathlib
 import random
+import subprocess
 import sys
 import tempfile
 
@@ -148,6 +151,24 @@ def main():
         got, why = evpose_read(a.evpose, little)
         compare("halves swapped, evpose reads (little)", got, street, why)
         compare("halves swapped, evlib reads (little)", evlib_read(little), street)
+
+        # evpose's EVT 2.1 writer (`convert --out F.raw --encoding evt21|evt21-legacy`): the
+        # engine of each byte order reads the street events back (times from the first).
+        src = d / "street.npy"
+        np.save(src, street.astype(np.float64))
+        for enc, read in [("evt21-legacy", evutils_read), ("evt21", evlib_read)]:
+            out = d / f"street.evpose-{enc}.raw"
+            subprocess.run([a.evpose, "convert", str(src), "--width", "346", "--height", "260",
+                            "--out", str(out), "--encoding", enc], check=True,
+                           capture_output=True)
+            got = read(out)
+            got[:, 2] -= got[0, 2]
+            name = "evutils" if read is evutils_read else "evlib"
+            compare(f"evpose writes ({enc}), {name} reads", got, street)
+            back, why = evpose_read(a.evpose, out)
+            if back is not None:
+                back[:, 2] -= back[0, 2]
+            compare(f"evpose writes ({enc}), evpose reads", back, street, why)
 
         words = built_stream(1, 20_000)
         built = {o: d / f"built.{o}.raw" for o in ("legacy", "little")}

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""evpose's readers and its AEDAT 4 and EVT 3.0 writers against independent engines: expelliarmus (C; EVT 2.0,
+"""evpose's readers and its AEDAT 4, EVT 3.0 and EVT 2.0 writers against independent engines: expelliarmus (C; EVT 2.0,
 EVT 3.0, DAT), faery (Rust; EVT 2.0, EVT 3.0, DAT 1 and 2, AEDAT 4, CSV, Event Stream) and
 aedat (Rust; AEDAT 4).
 
@@ -8,7 +8,8 @@ aedat (Rust; AEDAT 4).
    events, and the street events inside 304 x 240 (DAT version 1) in every format it writes;
    `evpose convert` reads each file back; the events must equal the ones written, exactly.
 2. The engines read evpose's AEDAT 4 (the street events, and the bundled four-camera clip), its
-   EVT 3.0 (`convert --out F.raw`: faery exactly, expelliarmus in x, y and polarity) and the
+   EVT 3.0 (`convert --out F.raw`: faery exactly, expelliarmus in x, y and polarity), its EVT 2.0
+   (`--encoding evt2`: both exactly) and the
    spec-built fixtures in host/tests/fixtures/formats; they must read what evpose reads.
 3. `--real DIR`: real camera files read by evpose and the engines: Prophesee RAW (`*.raw`, e.g.
    expelliarmus's test files `evt2_sample.raw` and `evt3_sample.raw`,
@@ -150,6 +151,15 @@ def main():
             e = expelliarmus.Wizard(encoding="evt3").read(str(raw))
             compare(f"{stem}: evpose evt3 -> expelliarmus, x y p",
                     as_rows(e["t"], e["x"], e["y"], e["p"])[:, [0, 1, 3]], events[:, [0, 1, 3]])
+            # evpose's EVT 2.0 writer (`--encoding evt2`): both engines read it exactly.
+            raw2 = d / f"{stem}-evpose-evt2.raw"
+            subprocess.run([a.evpose, "convert", str(src), "--width", str(size[0]), "--height",
+                            str(size[1]), "--out", str(raw2), "--encoding", "evt2"], check=True,
+                           capture_output=True)
+            compare(f"{stem}: evpose evt2 -> faery", faery_read(raw2), events)
+            e = expelliarmus.Wizard(encoding="evt2").read(str(raw2))
+            compare(f"{stem}: evpose evt2 -> expelliarmus",
+                    as_rows(e["t"], e["x"], e["y"], e["p"]), events)
         clip = d / "clip.aedat4"
         subprocess.run([a.evpose, "convert", str(CLIP), "--out", str(clip)], check=True,
                        capture_output=True)

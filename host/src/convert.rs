@@ -7,6 +7,7 @@ use anyhow::{bail, Context, Result};
 use npyz::WriterBuilder;
 
 use crate::io::aedat4::{Aedat4Writer, Compression};
+use crate::io::evt::Encoding;
 use crate::io::{self, Batch, CameraInfo, OpenOptions};
 use crate::summary::summarize_with;
 
@@ -99,11 +100,50 @@ pub fn to_npy(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Result
     })
 }
 
+/// A Prophesee RAW writer of either family: EVT 3.0, or EVT 2.0 / 2.1.
+enum RawWriter<W: std::io::Write> {
+    Evt3(io::evt::Evt3Writer<W>),
+    Evt2(io::evt::Evt2Writer<W>),
+}
+
+impl<W: std::io::Write> RawWriter<W> {
+    fn new(out: W, encoding: Encoding, (width, height): (u16, u16)) -> std::io::Result<Self> {
+        Ok(match encoding {
+            Encoding::Evt3 => Self::Evt3(io::evt::Evt3Writer::new(out, width, height)?),
+            e => Self::Evt2(io::evt::Evt2Writer::new(out, e, width, height)?),
+        })
+    }
+    fn write(&mut self, events: &[evpose_core::Event]) -> std::io::Result<()> {
+        match self {
+            Self::Evt3(w) => w.write(events),
+            Self::Evt2(w) => w.write(events),
+        }
+    }
+    fn origin(&self) -> Option<i64> {
+        match self {
+            Self::Evt3(w) => w.origin(),
+            Self::Evt2(w) => w.origin(),
+        }
+    }
+    fn finish(self) -> std::io::Result<W> {
+        match self {
+            Self::Evt3(w) => w.finish(),
+            Self::Evt2(w) => w.finish(),
+        }
+    }
+}
+
 /// Writes `camera`'s events of the recording `file` (read with `opts`) to `out` as a Prophesee
-/// RAW file in EVT 3.0 ([`io::evt::Evt3Writer`]), streaming. The sensor size is the one the file
-/// states, else `--width/--height`; without either it is an error (an EVT 3.0 header states
-/// it).
-pub fn to_evt3(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Result<Converted> {
+/// RAW file in `encoding` (EVT 3.0: [`io::evt::Evt3Writer`]; EVT 2.0 and both EVT 2.1 byte
+/// orders: [`io::evt::Evt2Writer`]), streaming. The sensor size is the one the file states, else
+/// `--width/--height`; without either it is an error (a RAW header states it).
+pub fn to_raw(
+    file: &Path,
+    opts: &OpenOptions,
+    camera: u8,
+    out: &Path,
+    encoding: Encoding,
+) -> Result<Converted> {
     check_distinct(file, out)?;
     let mut reader = io::open_with(file, opts)?;
     let info = reader.info().clone();
@@ -115,7 +155,8 @@ pub fn to_evt3(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Resul
         .and_then(|c| c.width.zip(c.height));
     let Some((width, height)) = stated.or(opts.size) else {
         bail!(
-            "{} states no sensor size, which an EVT 3.0 header needs: pass --width and --height",
+            "{} states no sensor size, which a Prophesee RAW header needs: pass --width and \
+             --height",
             file.display()
         );
     };
@@ -123,7 +164,7 @@ pub fn to_evt3(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Resul
     let path = file;
     let file =
         std::fs::File::create(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let mut w = io::evt::Evt3Writer::new(std::io::BufWriter::new(file), width, height)?;
+    let mut w = RawWriter::new(std::io::BufWriter::new(file), encoding, (width, height))?;
     let mut batch = Batch::default();
     let mut picked = Vec::new();
     let mut written = 0u64;
@@ -145,9 +186,11 @@ pub fn to_evt3(file: &Path, opts: &OpenOptions, camera: u8, out: &Path) -> Resul
     }
     let mut assumptions = reader.notes().assumptions;
     if origin != 0 {
+        let bits = if encoding == Encoding::Evt3 { 24 } else { 34 };
         assumptions.push(format!(
-            "times written from {origin} µs, the 2^24-µs boundary before the first event's \
-             (EVT 3.0 holds 24 bits of time)"
+            "times written from {origin} µs, the 2^{bits}-µs boundary before the first event's \
+             ({} holds {bits} bits of time)",
+            if bits == 24 { "EVT 3.0" } else { "EVT 2.x" }
         ));
     }
     Ok(Converted {

@@ -230,6 +230,32 @@ fn convert_dhp19_to_npy_per_camera_and_to_aedat4() {
     let v = json(&["info", s(&raw), "--json"]);
     assert_eq!(v["format"], "evt3");
     assert_eq!(v["cameras"][0]["width"], 346);
+    // EVT 2.0 and EVT 2.1 in both byte orders (`--encoding`): the same events.
+    for enc in ["evt2", "evt21", "evt21-legacy"] {
+        let raw = tmp(&format!("dhp19-cam2-{enc}.raw"));
+        evpose(&[
+            "convert",
+            s(&path),
+            "--out",
+            s(&raw),
+            "--camera",
+            "2",
+            "--encoding",
+            enc,
+        ]);
+        assert_eq!(read_all(&raw), want2, "{enc}");
+        assert_eq!(json(&["info", s(&raw), "--json"])["format"], enc);
+    }
+    let npy_out = tmp("x-enc.npy");
+    let msg = evpose_err(&[
+        "convert",
+        s(&path),
+        "--out",
+        s(&npy_out),
+        "--encoding",
+        "evt21",
+    ]);
+    assert!(msg.contains(".raw"), "{msg}");
 
     // AEDAT 4: one stream per camera, in camera order, so the ids survive.
     let all = tmp("dhp19-all.aedat4");

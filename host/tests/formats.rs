@@ -817,6 +817,88 @@ fn evt3_writer_round_trips() {
     assert!(Evt3Writer::new(Vec::new(), 4096, 10).is_err());
 }
 
+/// EVT 2.0 and EVT 2.1 (both byte orders) written by `Evt2Writer` read back as the events
+/// given (times from the 2^34-µs boundary before the first): gaps, a step back, rows of events
+/// at one time (EVT 2.1 vectors), the counter's wrap on the way; and the refusals.
+#[test]
+fn evt2_and_evt21_writers_round_trip() {
+    use evpose_host::io::evt::{Encoding, Evt2Writer};
+    let mut events: Vec<Event> = synthetic(3000, 1280, 720, 1, 0)
+        .iter()
+        .map(|e| Event::new(e.x, e.y, e.t, e.on))
+        .collect();
+    // A gap of 9 s, a step back of 3 ms; a row of events at one time, left to right (one
+    // vector word in EVT 2.1, 40 columns: two words), then a step left (a new word).
+    for e in &mut events[1001..] {
+        e.t += 9_000_000;
+    }
+    events[2500].t -= 3_000;
+    let last = events[2999].t;
+    events.extend((0..40).map(|i| Event::new(100 + i, 7, last, true)));
+    events.push(Event::new(101, 7, last, true));
+    // Across the 2^34-µs wrap of the time-high counter, in steps under 2^33 µs.
+    events.extend((1..4).map(|i| Event::new(9, 9, i << 32, true)));
+    // The last events before the wrap lie 15 periods before it, the first after it 15 periods
+    // into the next: the writer steps the counter through its last value and 0 on the way.
+    let wrap = 1i64 << 34;
+    let around = (0..50).map(|i| wrap - 1000 + if i < 25 { 4 * i } else { 2000 + 4 * i });
+    events.extend(around.zip(0u16..).map(|(t, x)| Event::new(x, 3, t, false)));
+    let write = |enc: Encoding, events: &[Event]| {
+        let mut w = Evt2Writer::new(Vec::new(), enc, 1280, 720).unwrap();
+        w.write(events).map(|()| w.finish().unwrap())
+    };
+    for (enc, format) in [
+        (Encoding::Evt2, Format::Evt2),
+        (Encoding::Evt21, Format::Evt21),
+        (Encoding::Evt21Legacy, Format::Evt21Legacy),
+    ] {
+        let bytes = write(enc, &events).unwrap();
+        let r = EvtReader::new(&bytes[..], Format::Raw, None).unwrap();
+        assert_eq!(r.info().format, format);
+        let d = drain(r).unwrap();
+        let got: Vec<Event> = d.events.iter().map(|(_, e)| *e).collect();
+        assert_eq!(got, events, "{enc:?}");
+        assert_eq!(d.notes.timestamp_wraps, 1, "{enc:?}");
+        assert!(d.notes.assumptions.is_empty(), "{:?}", d.notes.assumptions);
+        // The wrap as a sensor's counter steps: its last value, then 0 (OpenEB counts only
+        // that step back as a wrap).
+        if enc == Encoding::Evt2 {
+            let body = &bytes[bytes.windows(6).position(|w| w == b"% end\n").unwrap() + 6..];
+            let highs: Vec<u32> = body
+                .chunks_exact(4)
+                .map(|b| u32::from_le_bytes(b.try_into().unwrap()))
+                .filter(|w| w >> 28 == 0x8)
+                .collect();
+            assert!(
+                highs.windows(2).any(|w| w == [0x8FFF_FFFF, 0x8000_0000]),
+                "no 0xFFFFFFF, 0 time highs"
+            );
+        }
+    }
+    // EVT 2.1 takes a row at one time in fewer words than EVT 2.0 (8 and 4 bytes a word).
+    let row: Vec<Event> = (0..64).map(|i| Event::new(i, 5, 1_000, true)).collect();
+    let (w2, w21) = (
+        write(Encoding::Evt2, &row).unwrap(),
+        write(Encoding::Evt21, &row).unwrap(),
+    );
+    let header = |b: &[u8]| b.windows(6).position(|w| w == b"% end\n").unwrap() + 6;
+    assert_eq!(w2.len() - header(&w2), 4 * (1 + 64));
+    assert_eq!(w21.len() - header(&w21), 8 * (1 + 2));
+    // Refused: a pixel outside, a step back across a 2^34-µs boundary or of 2^33 µs, a step
+    // forward of 2^33 µs, EVT 3.0.
+    let bad = |e: &[Event]| write(Encoding::Evt21, e).unwrap_err().to_string();
+    assert!(bad(&[Event::new(1280, 0, 0, true)]).contains("outside"));
+    let mut across: Vec<Event> = (0..4).map(|i| Event::new(0, 0, i << 32, true)).collect();
+    across.extend([(1 << 34) + 5, (1 << 34) - 5].map(|t| Event::new(0, 0, t, true)));
+    assert!(bad(&across).contains("goes back"));
+    let far = [Event::new(0, 0, 1 << 33, true), Event::new(0, 0, 0, true)];
+    assert!(bad(&far).contains("goes back"));
+    let gap = [Event::new(0, 0, 0, true), Event::new(0, 0, 1 << 33, true)];
+    assert!(bad(&gap).contains("2^33"));
+    assert!(Evt2Writer::new(Vec::new(), Encoding::Evt3, 10, 10).is_err());
+    assert!(Evt2Writer::new(Vec::new(), Encoding::Evt2, 4096, 10).is_err());
+}
+
 /// The size a header without `% format` or `% geometry` implies through `% system_ID`, as
 /// OpenEB's `check_header` decides whose table applies.
 #[test]

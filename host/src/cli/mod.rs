@@ -90,16 +90,57 @@ pub struct ConvertArgs {
     /// Recording to convert.
     pub file: PathBuf,
     /// Output: `.npy` ((N, 4) float64 `[x, y, t_us, p]`, one camera), `.aedat4` (one event
-    /// stream per camera, LZ4, readable by DV tools) or `.raw` (Prophesee EVT 3.0, one camera,
-    /// readable by Metavision / OpenEB tools).
+    /// stream per camera, LZ4, readable by DV tools) or `.raw` (Prophesee RAW, one camera,
+    /// readable by Metavision / OpenEB tools; EVT 3.0 unless `--encoding` says otherwise).
     #[arg(long)]
     pub out: PathBuf,
+    /// A `.raw` output's encoding: `evt3` (an IMX636's default), `evt21` (a GenX320's default,
+    /// its byte order), `evt21-legacy` (EVT 2.1 as an IMX636 writes it) or `evt2`.
+    #[arg(long, value_enum)]
+    pub encoding: Option<RawEncoding>,
     /// Camera to export (default: camera 0 for `.npy` and `.raw`, every camera for `.aedat4`).
     #[arg(long)]
     pub camera: Option<u8>,
     /// How to read the recording.
     #[command(flatten)]
     pub input: InputArgs,
+}
+
+/// The encodings `convert --out F.raw` writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum RawEncoding {
+    /// EVT 3.0 (16-bit words).
+    Evt3,
+    /// EVT 2.1, whole 64-bit words little-endian (a GenX320's order).
+    Evt21,
+    /// EVT 2.1, each word's upper half first (an IMX636's order).
+    #[value(name = "evt21-legacy")]
+    Evt21Legacy,
+    /// EVT 2.0 (32-bit words, one event each).
+    Evt2,
+}
+
+impl RawEncoding {
+    /// The core's encoding.
+    pub fn encoding(self) -> crate::io::evt::Encoding {
+        use crate::io::evt::Encoding;
+        match self {
+            Self::Evt3 => Encoding::Evt3,
+            Self::Evt21 => Encoding::Evt21,
+            Self::Evt21Legacy => Encoding::Evt21Legacy,
+            Self::Evt2 => Encoding::Evt2,
+        }
+    }
+
+    /// How `convert` names it.
+    fn label(self) -> &'static str {
+        match self {
+            Self::Evt3 => "EVT 3.0",
+            Self::Evt21 => "EVT 2.1, a GenX320's byte order",
+            Self::Evt21Legacy => "EVT 2.1, an IMX636's byte order",
+            Self::Evt2 => "EVT 2.0",
+        }
+    }
 }
 
 /// The longest `--lag` the fixed-lag filter takes: 64 windows each side (each window waits
@@ -310,12 +351,19 @@ fn convert(a: &ConvertArgs) -> Result<()> {
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
     let opts = a.input.options();
+    if a.encoding.is_some() && ext.as_deref() != Some("raw") {
+        bail!("--encoding is for a Prophesee RAW output: name the output .raw");
+    }
+    let encoding = a.encoding.unwrap_or(RawEncoding::Evt3);
     let done = match ext.as_deref() {
         Some("npy") => convert::to_npy(&a.file, &opts, a.camera.unwrap_or(0), &a.out)?,
         Some("aedat4") => convert::to_aedat4(&a.file, &opts, a.camera, &a.out)?,
-        Some("raw") => convert::to_evt3(&a.file, &opts, a.camera.unwrap_or(0), &a.out)?,
+        Some("raw") => {
+            let enc = encoding.encoding();
+            convert::to_raw(&a.file, &opts, a.camera.unwrap_or(0), &a.out, enc)?
+        }
         _ => bail!(
-            "{}: unknown output format; name the output .npy, .aedat4 or .raw (EVT 3.0)",
+            "{}: unknown output format; name the output .npy, .aedat4 or .raw (Prophesee RAW)",
             a.out.display()
         ),
     };
@@ -332,9 +380,9 @@ fn convert(a: &ConvertArgs) -> Result<()> {
         ids.join(", "),
         a.out.display(),
         match ext.as_deref() {
-            Some("aedat4") => " (AEDAT 4.0, LZ4; stream i holds the i-th of them)",
-            Some("raw") => " (Prophesee RAW, EVT 3.0)",
-            _ => "",
+            Some("aedat4") => " (AEDAT 4.0, LZ4; stream i holds the i-th of them)".to_string(),
+            Some("raw") => format!(" (Prophesee RAW, {})", encoding.label()),
+            _ => String::new(),
         }
     );
     Ok(())

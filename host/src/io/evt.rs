@@ -1,5 +1,5 @@
-//! Prophesee RAW files: EVT 2.0, EVT 2.1 and EVT 3.0 encodings, read ([`EvtReader`]) and, in
-//! EVT 3.0, written ([`Evt3Writer`]).
+//! Prophesee RAW files: EVT 2.0, EVT 2.1 and EVT 3.0 encodings, read ([`EvtReader`]) and
+//! written ([`Evt3Writer`] for EVT 3.0, [`Evt2Writer`] for EVT 2.0 and 2.1).
 //!
 //! # Header
 //!
@@ -612,24 +612,8 @@ impl<W: std::io::Write> Evt3Writer<W> {
     pub fn write(&mut self, events: &[Event]) -> std::io::Result<()> {
         let invalid = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, m);
         for e in events {
-            let (w, h) = self.size;
-            if e.x >= w || e.y >= h {
-                return Err(invalid(format!(
-                    "event at x = {}, y = {} lies outside the {w}x{h} sensor",
-                    e.x, e.y
-                )));
-            }
-            // The 2^24-µs boundary at or before the first event: times keep their low 24 bits,
-            // as a sensor's EVT 3.0 would hold them.
-            let origin = *self.origin.get_or_insert(e.t - e.t.rem_euclid(1 << 24));
-            let t = e.t.checked_sub(origin).filter(|t| (0..1 << 62).contains(t));
-            let Some(t) = t else {
-                return Err(invalid(format!(
-                    "timestamp {} µs: EVT 3.0 holds times from {origin} µs (the first event's, \
-                     or 0) to 2^62 µs after",
-                    e.t
-                )));
-            };
+            // Times keep their low 24 bits, as a sensor's EVT 3.0 would hold them.
+            let t = placed(e, self.size, &mut self.origin, 24)?;
             let (high, low) = (t >> 12, t & 0xFFF);
             match self.high {
                 None => {
@@ -691,6 +675,209 @@ impl<W: std::io::Write> Evt3Writer<W> {
 
     /// Writes what is buffered and hands the output back.
     pub fn finish(mut self) -> std::io::Result<W> {
+        self.out.write_all(&self.words)?;
+        self.out.flush()?;
+        Ok(self.out)
+    }
+}
+
+/// An event's time for a RAW writer whose encoding holds `bits` bits of time: from `origin`,
+/// the 2^`bits`-µs boundary at or before the first event's (set by the first call); an error
+/// for a pixel outside `size` or a time before the origin or 2^62 µs after it.
+fn placed(
+    e: &Event,
+    (w, h): (u16, u16),
+    origin: &mut Option<i64>,
+    bits: u32,
+) -> std::io::Result<i64> {
+    let invalid = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, m);
+    if e.x >= w || e.y >= h {
+        return Err(invalid(format!(
+            "event at x = {}, y = {} lies outside the {w}x{h} sensor",
+            e.x, e.y
+        )));
+    }
+    let origin = *origin.get_or_insert(e.t - e.t.rem_euclid(1 << bits));
+    e.t.checked_sub(origin)
+        .filter(|t| (0..1 << 62).contains(t))
+        .ok_or_else(|| {
+            invalid(format!(
+                "timestamp {} µs: the encoding holds times from {origin} µs (the first event's \
+                 2^{bits}-µs boundary) to 2^62 µs after",
+                e.t
+            ))
+        })
+}
+
+/// The widest step, in EVT 2.0 / 2.1 time-high periods (64 µs), that [`Evt2Writer`] writes as
+/// one word: under half the 28-bit counter's range, so that a reader unwraps it forward.
+const MAX_WRITE_STEP_PERIODS_2: i64 = (1 << 27) - 1;
+
+/// Writes events as a Prophesee RAW file in EVT 2.0 or EVT 2.1 (either byte order,
+/// [`Encoding::Evt21`] as a GenX320 writes it, [`Encoding::Evt21Legacy`] as an IMX636 does),
+/// streaming: a header stating the size (and, for EVT 2.1, the byte order as OpenEB writes it:
+/// `% format EVT21;endianness=…` and an `% endianness` line), a time-high word wherever an
+/// event's `t >> 6` changes, and one event word per event; in EVT 2.1 an event joins the word
+/// before when it has the same time, row and polarity, lies in the same 32 columns (the word's
+/// x is a multiple of 32, as a sensor's) and to the right of the word's last event, so that
+/// reading gives the events in their order.
+///
+/// Times are written from the 2^34-µs boundary at or before the first event's (EVT 2.x holds
+/// 34 bits of time); the time-high counter wraps on the way forward as a sensor's does.
+/// Refused with an error: a step back across a 2^34-µs boundary, a step forward of 2^33 µs or
+/// more (a reader could not tell it from a step back), a time before the origin, a pixel
+/// outside the stated sensor.
+pub struct Evt2Writer<W: std::io::Write> {
+    out: W,
+    encoding: Encoding,
+    size: (u16, u16),
+    origin: Option<i64>,
+    /// The last time-high value written (`t >> 6`, from the origin).
+    high: Option<i64>,
+    /// EVT 2.1: the word being filled (its upper half, mask, and the column of its last event).
+    pending: Option<(u32, u32, u16)>,
+    words: Vec<u8>,
+}
+
+impl<W: std::io::Write> Evt2Writer<W> {
+    /// Writes the header of a `width` × `height` sensor (at most 2,048 × 2,048: 11-bit
+    /// addresses) in `encoding` (EVT 2.0 or 2.1; EVT 3.0 is [`Evt3Writer`]'s).
+    pub fn new(mut out: W, encoding: Encoding, width: u16, height: u16) -> std::io::Result<Self> {
+        check_evt3_size(width, height)?;
+        let header = match encoding {
+            Encoding::Evt2 => format!("% evt 2.0\n% format EVT2;height={height};width={width}\n"),
+            Encoding::Evt21 | Encoding::Evt21Legacy => {
+                let order = if encoding == Encoding::Evt21 {
+                    "little"
+                } else {
+                    "legacy"
+                };
+                format!(
+                    "% format EVT21;endianness={order};height={height};width={width}\n\
+                     % endianness {order}\n"
+                )
+            }
+            Encoding::Evt3 => {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::InvalidInput,
+                    "EVT 3.0 is written by Evt3Writer",
+                ))
+            }
+        };
+        write!(
+            out,
+            "{header}% geometry {width}x{height}\n% integrator_name evpose\n% end\n"
+        )?;
+        Ok(Self {
+            out,
+            encoding,
+            size: (width, height),
+            origin: None,
+            high: None,
+            pending: None,
+            words: Vec::with_capacity(1 << 16),
+        })
+    }
+
+    /// Appends a word: its upper half (an EVT 2.0 word) and, in EVT 2.1, its mask.
+    fn word(&mut self, upper: u32, mask: u32) -> std::io::Result<()> {
+        match self.encoding {
+            Encoding::Evt21 => self
+                .words
+                .extend_from_slice(&(u64::from(upper) << 32 | u64::from(mask)).to_le_bytes()),
+            Encoding::Evt21Legacy => {
+                self.words.extend_from_slice(&upper.to_le_bytes());
+                self.words.extend_from_slice(&mask.to_le_bytes());
+            }
+            _ => self.words.extend_from_slice(&upper.to_le_bytes()),
+        }
+        if self.words.len() >= 1 << 16 {
+            self.out.write_all(&self.words)?;
+            self.words.clear();
+        }
+        Ok(())
+    }
+
+    /// Writes the EVT 2.1 word being filled, if any.
+    fn flush_pending(&mut self) -> std::io::Result<()> {
+        match self.pending.take() {
+            Some((upper, mask, _)) => self.word(upper, mask),
+            None => Ok(()),
+        }
+    }
+
+    /// Appends `events` in their order.
+    pub fn write(&mut self, events: &[Event]) -> std::io::Result<()> {
+        let invalid = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, m);
+        for e in events {
+            let t = placed(e, self.size, &mut self.origin, 34)?;
+            let high = t >> 6;
+            if self.high != Some(high) {
+                self.flush_pending()?;
+                if let Some(at) = self.high {
+                    if high < at && (high >> 28 != at >> 28 || at - high > MAX_WRITE_STEP_PERIODS_2)
+                    {
+                        return Err(invalid(format!(
+                            "timestamp {} µs goes back past a 2^34-µs boundary or by 2^33 µs or \
+                             more: EVT 2.x cannot hold that",
+                            e.t
+                        )));
+                    }
+                    if high - at > MAX_WRITE_STEP_PERIODS_2 {
+                        return Err(invalid(format!(
+                            "timestamp {} µs comes 2^33 µs or more after the one before: a \
+                             reader could not tell that step from one back",
+                            e.t
+                        )));
+                    }
+                    // Across the counter's wrap, its last value then 0, as a sensor's counter
+                    // steps: OpenEB takes only that step back as a wrap.
+                    if high >> 28 > at >> 28 {
+                        if at & 0x0FFF_FFFF != 0x0FFF_FFFF {
+                            self.word(0x8 << 28 | 0x0FFF_FFFF, 0)?;
+                        }
+                        if high & 0x0FFF_FFFF != 0 {
+                            self.word(0x8 << 28, 0)?;
+                        }
+                    }
+                }
+                self.word(0x8 << 28 | (high & 0x0FFF_FFFF) as u32, 0)?;
+                self.high = Some(high);
+            }
+            let upper = |x: u16| {
+                u32::from(e.on) << 28
+                    | ((t & 0x3F) as u32) << 22
+                    | u32::from(x) << 11
+                    | u32::from(e.y)
+            };
+            if self.encoding == Encoding::Evt2 {
+                self.word(upper(e.x), 1)?;
+                continue;
+            }
+            let base = e.x & !31;
+            match &mut self.pending {
+                Some((u, mask, last)) if *u == upper(base) && e.x > *last => {
+                    *mask |= 1 << (e.x - base);
+                    *last = e.x;
+                }
+                _ => {
+                    self.flush_pending()?;
+                    self.pending = Some((upper(base), 1 << (e.x - base), e.x));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The time (µs) subtracted from every event's: the 2^34-µs boundary at or before the first
+    /// event's; `None` before the first event.
+    pub fn origin(&self) -> Option<i64> {
+        self.origin
+    }
+
+    /// Writes what is buffered and hands the output back.
+    pub fn finish(mut self) -> std::io::Result<W> {
+        self.flush_pending()?;
         self.out.write_all(&self.words)?;
         self.out.flush()?;
         Ok(self.out)
