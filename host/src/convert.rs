@@ -160,38 +160,49 @@ pub fn to_raw(
             file.display()
         );
     };
-    io::evt::check_evt3_size(width, height)?;
+    io::evt::check_raw_size(width, height)?;
     let path = file;
     let file =
         std::fs::File::create(out).with_context(|| format!("cannot create {}", out.display()))?;
     let mut w = RawWriter::new(std::io::BufWriter::new(file), encoding, (width, height))?;
-    let mut batch = Batch::default();
-    let mut picked = Vec::new();
-    let mut written = 0u64;
-    while reader
-        .read_batch(&mut batch)
-        .with_context(|| format!("{}", path.display()))?
-    {
-        picked.clear();
-        picked.extend(batch.of_camera(camera));
-        w.write(&picked)
-            .with_context(|| format!("cannot write {}", out.display()))?;
-        written += picked.len() as u64;
-    }
-    let origin = w.origin().unwrap_or(0);
-    w.finish()?;
+    let mut copy = || -> Result<(u64, i64)> {
+        let mut batch = Batch::default();
+        let mut picked = Vec::new();
+        let mut written = 0u64;
+        while reader
+            .read_batch(&mut batch)
+            .with_context(|| format!("{}", path.display()))?
+        {
+            picked.clear();
+            picked.extend(batch.of_camera(camera));
+            w.write(&picked)
+                .with_context(|| format!("cannot write {}", out.display()))?;
+            written += picked.len() as u64;
+        }
+        Ok((written, w.origin().unwrap_or(0)))
+    };
+    // A refused event leaves no half-written file that would look like a whole one.
+    let copied = copy().and_then(|done| Ok((done, w.finish()?)));
+    let ((written, origin), _) = copied.inspect_err(|_| {
+        let _ = std::fs::remove_file(out);
+    })?;
     let mut warnings = Vec::new();
     if written == 0 {
         warnings.push(format!("{}: camera {camera} has no events", path.display()));
     }
     let mut assumptions = reader.notes().assumptions;
     if origin != 0 {
-        let bits = if encoding == Encoding::Evt3 { 24 } else { 34 };
-        assumptions.push(format!(
-            "times written from {origin} µs, the 2^{bits}-µs boundary before the first event's \
-             ({} holds {bits} bits of time)",
-            if bits == 24 { "EVT 3.0" } else { "EVT 2.x" }
-        ));
+        assumptions.push(if encoding == Encoding::Evt3 {
+            format!(
+                "times written from {origin} µs, the 2^24-µs boundary at or before the first \
+                 event's (EVT 3.0 holds 24 bits of time)"
+            )
+        } else {
+            format!(
+                "times written from {origin} µs, the 64-µs boundary about a second before the \
+                 first event's (EVT 2.x holds 34 bits of time: 4.8 hours)"
+            )
+        });
     }
     Ok(Converted {
         events: written,

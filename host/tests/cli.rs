@@ -246,6 +246,23 @@ fn convert_dhp19_to_npy_per_camera_and_to_aedat4() {
         assert_eq!(read_all(&raw), want2, "{enc}");
         assert_eq!(json(&["info", s(&raw), "--json"])["format"], enc);
     }
+    // A refused event (outside a stated 100 x 100 sensor) leaves no file behind.
+    let street =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/fixtures/street-00.events.npy");
+    let refused = tmp("refused.raw");
+    let msg = evpose_err(&[
+        "convert",
+        s(&street),
+        "--width",
+        "100",
+        "--height",
+        "100",
+        "--out",
+        s(&refused),
+        "--encoding",
+        "evt21",
+    ]);
+    assert!(msg.contains("outside") && !refused.exists(), "{msg}");
     let npy_out = tmp("x-enc.npy");
     let msg = evpose_err(&[
         "convert",

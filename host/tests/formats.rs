@@ -836,6 +836,9 @@ fn evt2_and_evt21_writers_round_trip() {
     let last = events[2999].t;
     events.extend((0..40).map(|i| Event::new(100 + i, 7, last, true)));
     events.push(Event::new(101, 7, last, true));
+    // The polarity flips within the row; an event twice.
+    events
+        .extend([(102, false), (103, true), (103, true)].map(|(x, on)| Event::new(x, 7, last, on)));
     // Across the 2^34-µs wrap of the time-high counter, in steps under 2^33 µs.
     events.extend((1..4).map(|i| Event::new(9, 9, i << 32, true)));
     // The last events before the wrap lie 15 periods before it, the first after it 15 periods
@@ -884,19 +887,44 @@ fn evt2_and_evt21_writers_round_trip() {
     let header = |b: &[u8]| b.windows(6).position(|w| w == b"% end\n").unwrap() + 6;
     assert_eq!(w2.len() - header(&w2), 4 * (1 + 64));
     assert_eq!(w21.len() - header(&w21), 8 * (1 + 2));
-    // Refused: a pixel outside, a step back across a 2^34-µs boundary or of 2^33 µs, a step
-    // forward of 2^33 µs, EVT 3.0.
+    // A Unix-time recording: times from the 64-µs boundary about a second before the first, so
+    // that an event a little before it is written too, and the counter does not wrap.
+    let unix = 1_589_163_147_368_868;
+    let dv: Vec<Event> = [0, -500_000, 3_600_000_000]
+        .map(|d| Event::new(1, 1, unix + d, true))
+        .to_vec();
+    let mut w = Evt2Writer::new(Vec::new(), Encoding::Evt2, 1280, 720).unwrap();
+    w.write(&dv).unwrap();
+    let origin = w.origin().unwrap();
+    assert!(
+        origin % 64 == 0 && (unix - origin - (1 << 20)).abs() < 64,
+        "{origin}"
+    );
+    let d = decode(Dec::Evt2, &w.finish().unwrap()).unwrap();
+    let got: Vec<i64> = d.events.iter().map(|(_, e)| e.t + origin).collect();
+    assert_eq!(got, dv.iter().map(|e| e.t).collect::<Vec<_>>());
+    assert_eq!(d.notes.timestamp_wraps, 0);
+    // Refused: a pixel outside, a step back across the counter's wrap or of 2^27 periods, a
+    // step forward of 2^27 periods, EVT 3.0, a sensor over 2048.
     let bad = |e: &[Event]| write(Encoding::Evt21, e).unwrap_err().to_string();
     assert!(bad(&[Event::new(1280, 0, 0, true)]).contains("outside"));
     let mut across: Vec<Event> = (0..4).map(|i| Event::new(0, 0, i << 32, true)).collect();
     across.extend([(1 << 34) + 5, (1 << 34) - 5].map(|t| Event::new(0, 0, t, true)));
     assert!(bad(&across).contains("goes back"));
-    let far = [Event::new(0, 0, 1 << 33, true), Event::new(0, 0, 0, true)];
-    assert!(bad(&far).contains("goes back"));
+    let far =
+        [0, 1 << 32, (1 << 33) + (1 << 31), (1 << 31) - 1000].map(|t| Event::new(0, 0, t, true));
+    assert!(bad(&far).contains("or more before"));
     let gap = [Event::new(0, 0, 0, true), Event::new(0, 0, 1 << 33, true)];
     assert!(bad(&gap).contains("2^33"));
     assert!(Evt2Writer::new(Vec::new(), Encoding::Evt3, 10, 10).is_err());
-    assert!(Evt2Writer::new(Vec::new(), Encoding::Evt2, 4096, 10).is_err());
+    let wide = Evt2Writer::new(Vec::new(), Encoding::Evt2, 4096, 10)
+        .err()
+        .unwrap();
+    assert!(
+        wide.to_string()
+            .contains("EVT words hold sensors up to 2048"),
+        "{wide}"
+    );
 }
 
 /// The size a header without `% format` or `% geometry` implies through `% system_ID`, as

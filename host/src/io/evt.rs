@@ -531,13 +531,16 @@ impl<R: Read> super::source::Fill for EvtReader<R> {
     }
 }
 
-/// Whether EVT 3.0 holds a `width` × `height` sensor (11-bit addresses: up to 2,048), as
-/// [`Evt3Writer::new`] checks before it writes anything.
-pub fn check_evt3_size(width: u16, height: u16) -> std::io::Result<()> {
+/// Whether EVT words hold a `width` × `height` sensor (11-bit addresses: up to 2,048), as
+/// [`Evt3Writer::new`] and [`Evt2Writer::new`] check before they write anything.
+pub fn check_raw_size(width: u16, height: u16) -> std::io::Result<()> {
     if !(1..=2048).contains(&width) || !(1..=2048).contains(&height) {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
-            format!("EVT 3.0 holds sensors up to 2048 x 2048, not {width} x {height}"),
+            format!(
+                "Prophesee EVT words hold sensors up to 2048 x 2048 (11-bit addresses), not \
+                 {width} x {height}"
+            ),
         ));
     }
     Ok(())
@@ -580,7 +583,7 @@ impl<W: std::io::Write> Evt3Writer<W> {
     /// Writes the header of a `width` × `height` sensor (at most 2,048 × 2,048: 11-bit
     /// addresses).
     pub fn new(mut out: W, width: u16, height: u16) -> std::io::Result<Self> {
-        check_evt3_size(width, height)?;
+        check_raw_size(width, height)?;
         write!(
             out,
             "% evt 3.0\n% format EVT3;height={height};width={width}\n% geometry {width}x{height}\n\
@@ -612,8 +615,11 @@ impl<W: std::io::Write> Evt3Writer<W> {
     pub fn write(&mut self, events: &[Event]) -> std::io::Result<()> {
         let invalid = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, m);
         for e in events {
-            // Times keep their low 24 bits, as a sensor's EVT 3.0 would hold them.
-            let t = placed(e, self.size, &mut self.origin, 24)?;
+            // The 2^24-µs boundary at or before the first event: times keep their low 24 bits,
+            // as a sensor's EVT 3.0 would hold them.
+            let t = placed(e, self.size, &mut self.origin, |t| {
+                t - t.rem_euclid(1 << 24)
+            })?;
             let (high, low) = (t >> 12, t & 0xFFF);
             match self.high {
                 None => {
@@ -681,14 +687,14 @@ impl<W: std::io::Write> Evt3Writer<W> {
     }
 }
 
-/// An event's time for a RAW writer whose encoding holds `bits` bits of time: from `origin`,
-/// the 2^`bits`-µs boundary at or before the first event's (set by the first call); an error
-/// for a pixel outside `size` or a time before the origin or 2^62 µs after it.
+/// An event's time for a RAW writer, from `origin` (set by the first call to `first(t)` of the
+/// first event's time); an error for a pixel outside `size` or a time before the origin or 2^62
+/// µs after it.
 fn placed(
     e: &Event,
     (w, h): (u16, u16),
     origin: &mut Option<i64>,
-    bits: u32,
+    first: impl FnOnce(i64) -> i64,
 ) -> std::io::Result<i64> {
     let invalid = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, m);
     if e.x >= w || e.y >= h {
@@ -697,17 +703,35 @@ fn placed(
             e.x, e.y
         )));
     }
-    let origin = *origin.get_or_insert(e.t - e.t.rem_euclid(1 << bits));
+    let origin = *origin.get_or_insert_with(|| first(e.t));
     e.t.checked_sub(origin)
         .filter(|t| (0..1 << 62).contains(t))
         .ok_or_else(|| {
             invalid(format!(
-                "timestamp {} µs: the encoding holds times from {origin} µs (the first event's \
-                 2^{bits}-µs boundary) to 2^62 µs after",
+                "timestamp {} µs: the file holds times from {origin} µs (chosen from the first \
+                 event's) to 2^62 µs after",
                 e.t
             ))
         })
 }
+
+/// [`Evt2Writer`]'s origin for a first event at `t`: 0 where `t` lies in [0, 2^32) µs (times
+/// are kept as they are: the counter wraps 3.6 hours or more later); else the 64-µs boundary at
+/// or before [`EVT2_ORIGIN_LEAD`] before it (a Unix-time recording: times keep their low 6
+/// bits, events up to that lead before the first are written), so that a recording shorter
+/// than 4.8 hours less the lead never wraps the time-high counter (OpenEB's EVT 2.0 decoder
+/// looks for a wrap only between read buffers, with a 10 ms threshold: it can miss one).
+fn evt2_origin(t: i64) -> i64 {
+    if (0..1 << 32).contains(&t) {
+        return 0;
+    }
+    let lead = t.saturating_sub(EVT2_ORIGIN_LEAD);
+    lead - lead.rem_euclid(64)
+}
+
+/// How far before the first event [`Evt2Writer`]'s origin lies: 2^20 µs (about a second), for
+/// events a little out of order.
+const EVT2_ORIGIN_LEAD: i64 = 1 << 20;
 
 /// The widest step, in EVT 2.0 / 2.1 time-high periods (64 µs), that [`Evt2Writer`] writes as
 /// one word: under half the 28-bit counter's range, so that a reader unwraps it forward.
@@ -722,11 +746,17 @@ const MAX_WRITE_STEP_PERIODS_2: i64 = (1 << 27) - 1;
 /// x is a multiple of 32, as a sensor's) and to the right of the word's last event, so that
 /// reading gives the events in their order.
 ///
-/// Times are written from the 2^34-µs boundary at or before the first event's (EVT 2.x holds
-/// 34 bits of time); the time-high counter wraps on the way forward as a sensor's does.
-/// Refused with an error: a step back across a 2^34-µs boundary, a step forward of 2^33 µs or
-/// more (a reader could not tell it from a step back), a time before the origin, a pixel
-/// outside the stated sensor.
+/// Times are written as they are when the first lies in [0, 2^32) µs, else from the 64-µs
+/// boundary at or before 2^20 µs (about a second) before the first event's: EVT 2.x holds 34
+/// bits of time (4.8 hours), so a Unix-time recording shorter than that never wraps the
+/// time-high counter; a longer one wraps it as a sensor's does, through its last value and
+/// 0 (OpenEB's EVT 2.1 decoder takes only that step back as a wrap; its EVT 2.0 decoder looks
+/// for wraps between read buffers and can miss one). Refused with an error: a step back across
+/// a wrap of the counter or of 2^27 time-high periods (about 2^33 µs) or more, a step forward
+/// of 2^27 periods or more (a reader could not tell either from the other), a time before the
+/// origin, a pixel outside the stated sensor. Readers differ on steps back: evpose and OpenEB
+/// take a small one as given (OpenEB logs it), evutils as a wrap, faery keeps time from going
+/// back.
 pub struct Evt2Writer<W: std::io::Write> {
     out: W,
     encoding: Encoding,
@@ -743,7 +773,7 @@ impl<W: std::io::Write> Evt2Writer<W> {
     /// Writes the header of a `width` × `height` sensor (at most 2,048 × 2,048: 11-bit
     /// addresses) in `encoding` (EVT 2.0 or 2.1; EVT 3.0 is [`Evt3Writer`]'s).
     pub fn new(mut out: W, encoding: Encoding, width: u16, height: u16) -> std::io::Result<Self> {
-        check_evt3_size(width, height)?;
+        check_raw_size(width, height)?;
         let header = match encoding {
             Encoding::Evt2 => format!("% evt 2.0\n% format EVT2;height={height};width={width}\n"),
             Encoding::Evt21 | Encoding::Evt21Legacy => {
@@ -810,24 +840,26 @@ impl<W: std::io::Write> Evt2Writer<W> {
     pub fn write(&mut self, events: &[Event]) -> std::io::Result<()> {
         let invalid = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, m);
         for e in events {
-            let t = placed(e, self.size, &mut self.origin, 34)?;
+            let t = placed(e, self.size, &mut self.origin, evt2_origin)?;
             let high = t >> 6;
             if self.high != Some(high) {
                 self.flush_pending()?;
                 if let Some(at) = self.high {
-                    if high < at && (high >> 28 != at >> 28 || at - high > MAX_WRITE_STEP_PERIODS_2)
-                    {
+                    if high < at && high >> 28 != at >> 28 {
                         return Err(invalid(format!(
-                            "timestamp {} µs goes back past a 2^34-µs boundary or by 2^33 µs or \
-                             more: EVT 2.x cannot hold that",
+                            "timestamp {} µs goes back across a wrap of the 28-bit time-high \
+                             counter (a 2^34-µs boundary from the origin): EVT 2.x cannot hold \
+                             that",
                             e.t
                         )));
                     }
-                    if high - at > MAX_WRITE_STEP_PERIODS_2 {
+                    if (high - at).abs() > MAX_WRITE_STEP_PERIODS_2 {
                         return Err(invalid(format!(
-                            "timestamp {} µs comes 2^33 µs or more after the one before: a \
-                             reader could not tell that step from one back",
-                            e.t
+                            "timestamp {} µs lies 2^27 time-high periods (about 2^33 µs) or more \
+                             {} the one before: a reader could not tell that step from one the \
+                             other way",
+                            e.t,
+                            if high > at { "after" } else { "before" }
                         )));
                     }
                     // Across the counter's wrap, its last value then 0, as a sensor's counter
