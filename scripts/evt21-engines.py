@@ -24,7 +24,8 @@ writes the IMX636's order, OpenEB's `legacy`: each 64-bit word's upper half firs
    the events given; the firmware's boot check of the core's EVT 2.1 decoding
    (`firmware/assets/street-00.evt21`).
 
-usage: python3 -m venv /tmp/ev21 && /tmp/ev21/bin/pip install evutils==0.3.18 evlib==0.13.2
+usage: python3 -m venv /tmp/ev21 && /tmp/ev21/bin/pip install evutils==0.3.18 evlib==0.13.2 \\
+           polars==2.2.0
        /tmp/ev21/bin/python scripts/evt21-engines.py [--evpose target/release/evpose] \\
            [--write-fixtures DIR] [--firmware-asset PATH]
 Exit status 1 when any comparison fails.

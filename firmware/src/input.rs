@@ -1,4 +1,5 @@
-//! Event input: a sensor-agnostic [`EventSource`] trait and the `EVS1` byte-stream decoder.
+//! Event input: a sensor-agnostic [`EventSource`] trait, the `EVS1` byte-stream decoder, and
+//! [`EvtSource`], a Prophesee sensor's EVT words through the core's decoder.
 //!
 //! # Why a byte stream behind `embedded_io::Read`
 //! Event sensors reach an MCU as a byte stream: a serial link (UART, SPI slave with DMA) or a
@@ -8,7 +9,7 @@
 //! QEMU it is the recording in flash, a plain `&'static [u8]` (which implements `Read` too). The
 //! pipeline sees only [`EventSource`], a batch interface shaped like a DMA half-buffer, so a
 //! sensor with its own framing (a parallel port, an on-chip event decoder) only needs another
-//! `EventSource` implementation.
+//! `EventSource` implementation, as [`EvtSource`] is for a Prophesee sensor's words.
 //!
 //! # The `EVS1` stream
 //! Little-endian. A 24-byte header, then one `u32` word per event plus a `TIME` word where a time

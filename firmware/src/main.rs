@@ -3,8 +3,9 @@
 //! The image embeds an int8 model blob (`models/mcu.evq` at the repository root, the trained MCU
 //! model and the default of `evpose run`) and 22,500 events of the DAVIS346 street recording
 //! (`assets/street-00-02.evs`, three 7,500-event windows), and checks at boot that the core's
-//! EVT 3.0 decoder gives the first window's events from their EVT 3.0 words
-//! (`assets/street-00.evt3`, written by faery). It streams the events through the
+//! EVT decoder gives the first window's events from faery's EVT 3.0 words
+//! (`assets/street-00.evt3`) and evutils's EVT 2.1 words in a GenX320's byte order
+//! (`assets/street-00.evt21`), directly and through `input::EvtSource`. It streams the events through the
 //! core's rasterizer in DMA-sized batches, samples each window to the blob's point count (256)
 //! with a fixed seed, runs the int8 engine, decodes the joints, and prints per window, over defmt
 //! (semihosting under QEMU): the joints, their confidences and the temporally filtered joints

@@ -1,5 +1,5 @@
-//! `evpose convert`: a recording to an (N, 4) `.npy` array, to AEDAT 4.0 or to Prophesee EVT 3.0,
-//! streaming.
+//! `evpose convert`: a recording to an (N, 4) `.npy` array, to AEDAT 4.0 or to a Prophesee RAW
+//! file (EVT 3.0, 2.0 or 2.1), streaming.
 
 use std::path::Path;
 

@@ -818,7 +818,7 @@ fn evt3_writer_round_trips() {
 }
 
 /// EVT 2.0 and EVT 2.1 (both byte orders) written by `Evt2Writer` read back as the events
-/// given (times from the 2^34-µs boundary before the first): gaps, a step back, rows of events
+/// given (times kept, the first lying in [0, 2^32) µs): gaps, a step back, rows of events
 /// at one time (EVT 2.1 vectors), the counter's wrap on the way; and the refusals.
 #[test]
 fn evt2_and_evt21_writers_round_trip() {
@@ -1121,6 +1121,12 @@ fn evt21_byte_order_follows_openeb() {
         msg.contains("0x30000005000000ff") && msg.contains("reserved type 0x3"),
         "{msg}"
     );
+    // A GenX320's word read in the assumed IMX636 order (a Prophesee header without a byte
+    // order or system_ID) has its mask's bits as type: the error names the other order.
+    let mut f = raw_header(&["format EVT21;width=64;height=64"]);
+    f.extend_from_slice(&(0x8000_0001_4000_0000u64).to_le_bytes());
+    let msg = error_text(drain(EvtReader::new(&f[..], Format::Raw, None).unwrap()));
+    assert!(msg.contains("try --format evt21"), "{msg}");
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -36,8 +36,8 @@ pub enum Command {
     /// Describe a recording: format, resolution, event counts, time span.
     Info(InfoArgs),
     /// Convert a recording to an (N, 4) float64 `.npy` array [x, y, t_us, p] (one camera), to
-    /// AEDAT 4.0 (every camera; DV tools) or to a Prophesee RAW file in EVT 3.0 (`.raw`, one
-    /// camera; Metavision / OpenEB tools).
+    /// AEDAT 4.0 (every camera; DV tools) or to a Prophesee RAW file (`.raw`, one camera; EVT
+    /// 3.0, or EVT 2.0 / 2.1 with `--encoding`; Metavision / OpenEB tools).
     Convert(ConvertArgs),
     /// Rasterize events into event point clouds [x, y, t_avg, p_acc, cnt] (float32 .npy).
     Raster(RasterArgs),

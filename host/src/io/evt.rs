@@ -343,6 +343,8 @@ pub struct EvtReader<R> {
     decoder: EvtDecoder,
     /// The size came from `% system_ID` (a guess that `--width/--height` can correct).
     size_from_id: bool,
+    /// EVT 2.1's byte order was not stated but assumed as OpenEB assumes it.
+    order_assumed: bool,
     notes: ReadNotes,
     finished: bool,
 }
@@ -363,6 +365,9 @@ impl<R: Read> EvtReader<R> {
             Format::Evt3 => Some(Encoding::Evt3),
             _ => None,
         };
+        // EVT 2.1's byte order came from OpenEB's rule, not from the header (a reserved word
+        // then hints at the other order).
+        let mut order_assumed = false;
         let encoding = match (given, stated) {
             (Some(g), Some((name, e, _))) => {
                 if e != Some(g) {
@@ -380,6 +385,7 @@ impl<R: Read> EvtReader<R> {
             }
             (Some(g), None) => g,
             (None, Some((_, Some(e), note))) => {
+                order_assumed = note.is_some();
                 notes.assumptions.extend(note);
                 e
             }
@@ -431,6 +437,7 @@ impl<R: Read> EvtReader<R> {
             },
             decoder: EvtDecoder::new(encoding, size),
             size_from_id,
+            order_assumed,
             notes,
             finished: false,
         })
@@ -486,9 +493,23 @@ impl<R: Read> EvtReader<R> {
                         "EVT 2.0 word {word:#010x} has the reserved type {:#x}",
                         word >> 28
                     ),
-                    Encoding::Evt21 | Encoding::Evt21Legacy => format!(
-                        "EVT 2.1 word {word:#018x} has the reserved type {:#x}",
-                        word >> 60
+                    e @ (Encoding::Evt21 | Encoding::Evt21Legacy) => format!(
+                        "EVT 2.1 word {word:#018x} has the reserved type {:#x}{}",
+                        word >> 60,
+                        if self.order_assumed {
+                            format!(
+                                " (the header states no byte order and {} was assumed, as \
+                                 OpenEB assumes it: try --format {})",
+                                format_of(e).name(),
+                                if e == Encoding::Evt21 {
+                                    "evt21-legacy"
+                                } else {
+                                    "evt21"
+                                }
+                            )
+                        } else {
+                            String::new()
+                        }
                     ),
                     Encoding::Evt3 => format!(
                         "EVT 3.0 word {word:#06x} has the reserved type {:#x}",
@@ -783,8 +804,8 @@ impl<W: std::io::Write> Evt2Writer<W> {
                     "legacy"
                 };
                 format!(
-                    "% format EVT21;endianness={order};height={height};width={width}\n\
-                     % endianness {order}\n"
+                    "% evt 2.1\n% format EVT21;endianness={order};height={height};\
+                     width={width}\n% endianness {order}\n"
                 )
             }
             Encoding::Evt3 => {
@@ -901,8 +922,9 @@ impl<W: std::io::Write> Evt2Writer<W> {
         Ok(())
     }
 
-    /// The time (µs) subtracted from every event's: the 2^34-µs boundary at or before the first
-    /// event's; `None` before the first event.
+    /// The time (µs) subtracted from every event's: 0 when the first event's time lies in
+    /// [0, 2^32) µs, else the 64-µs boundary at or before 2^20 µs before it; `None` before the
+    /// first event.
     pub fn origin(&self) -> Option<i64> {
         self.origin
     }

@@ -9,7 +9,7 @@
 //! | [`aedat4`] | iniVation DV AEDAT 4.0 (reader and writer) |
 //! | [`aedat2`] | jAER AEDAT 2.0: DAVIS346/240, DVS128, DHP19 (four cameras) |
 //! | [`aedat3`] | cAER / libcaer AEDAT 3.1 |
-//! | [`evt`] | Prophesee RAW, EVT 2.0, EVT 2.1 and EVT 3.0 (decoded by the core's `evt`; EVT 3.0 written too) |
+//! | [`evt`] | Prophesee RAW, EVT 2.0, EVT 2.1 and EVT 3.0 (decoded by the core's `evt`; EVT 3.0, 2.0 and 2.1 written too) |
 //! | [`dat`] | Prophesee `.dat` CD events |
 //! | [`es`] | Event Stream `.es` (Sepia, Tarsier, faery): DVS and ATIS |
 //! | [`text`] | text / CSV `t x y p` |
