@@ -165,15 +165,7 @@ impl<R: Read> EvsReader<R> {
     /// behind them.
     #[inline(never)]
     fn refill(&mut self) -> Result<(), StreamError> {
-        let pending = self.buf.get(self.start..self.end).unwrap_or_default();
-        let mut carry = [0u8; 4];
-        let kept = pending.len().min(carry.len());
-        for (c, &b) in carry.iter_mut().zip(pending) {
-            *c = b;
-        }
-        for (b, &c) in self.buf.iter_mut().zip(&carry).take(kept) {
-            *b = c;
-        }
+        let kept = carry_to_front::<4>(&mut self.buf, self.start, self.end);
         (self.start, self.end) = (0, kept);
         let n = self
             .source
@@ -314,6 +306,21 @@ fn decode_words<const CHECKED: bool>(
     (n, used, Some(time))
 }
 
+/// Moves `buf[start..end]`, a cut word's bytes (at most `W`), to the front of `buf`; returns
+/// how many. Copied through `get` and zips: no panic path in the image.
+fn carry_to_front<const W: usize>(buf: &mut [u8], start: usize, end: usize) -> usize {
+    let mut carry = [0u8; W];
+    let pending = buf.get(start..end).unwrap_or_default();
+    let kept = pending.len().min(W);
+    for (c, &b) in carry.iter_mut().zip(pending) {
+        *c = b;
+    }
+    for (b, &c) in buf.iter_mut().zip(&carry).take(kept) {
+        *b = c;
+    }
+    kept
+}
+
 /// Why a Prophesee sensor's words could not be read ([`EvtSource`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
 #[non_exhaustive]
@@ -395,17 +402,8 @@ impl<R: Read, const N: usize> EventSource for EvtSource<R, N> {
                 continue; // words without events (time highs, rows): decode on
             }
             // Less than a word left (the output holds a word's events, so decoding stopped for
-            // want of bytes): move it to the front and read behind it. Copied through `get`
-            // and zips, as `EvsReader::refill` does: no panic path in the image.
-            let mut carry = [0u8; 8];
-            let pending = self.buf.get(self.start..self.end).unwrap_or_default();
-            let kept = pending.len().min(carry.len());
-            for (c, &b) in carry.iter_mut().zip(pending) {
-                *c = b;
-            }
-            for (b, &c) in self.buf.iter_mut().zip(&carry).take(kept) {
-                *b = c;
-            }
+            // want of bytes): move it to the front and read behind it.
+            let kept = carry_to_front::<8>(&mut self.buf, self.start, self.end);
             (self.start, self.end) = (0, kept);
             let n = self
                 .source
@@ -484,6 +482,40 @@ impl Read for Trickle<'_> {
     }
 }
 
+/// The `EVS1` stream's events that [`check_evt`] compares decoded events with, times from
+/// each stream's first event.
+struct Expected {
+    reader: EvsReader<&'static [u8]>,
+    /// The first decoded event's time and the stream's.
+    first: Option<(i64, i64)>,
+}
+
+impl Expected {
+    fn new(evs: &'static [u8]) -> Option<Self> {
+        Some(Self {
+            reader: EvsReader::new(evs).ok()?,
+            first: None,
+        })
+    }
+
+    /// Compares `events` with the stream's next ones; returns the mismatches (an event the
+    /// stream does not have counts as one).
+    fn compare(&mut self, events: &[Event]) -> u32 {
+        let mut mismatches = 0;
+        for e in events {
+            let Ok(Some(want)) = self.reader.next_event() else {
+                mismatches += 1;
+                continue;
+            };
+            let (t0, want_t0) = *self.first.get_or_insert((e.t, want.t));
+            if e.t - t0 != want.t - want_t0 || (e.x, e.y, e.on) != (want.x, want.y, want.on) {
+                mismatches += 1;
+            }
+        }
+        mismatches
+    }
+}
+
 /// What [`check_evt`] found.
 pub struct EvtCheck {
     /// Events the words gave.
@@ -517,13 +549,12 @@ pub fn check_evt(
         mismatches: 0,
         ticks: 0,
     };
-    let Ok(mut reader) = EvsReader::new(evs) else {
+    let Some(mut want) = Expected::new(evs) else {
         check.mismatches += 1;
         return check;
     };
     let mut decoder = EvtDecoder::new(encoding, Some((346, 260)));
     let mut batch = [Event::default(); 64];
-    let mut first = None;
     let mut rest = words;
     while !rest.is_empty() {
         let piece = rest.get(..EVT_PIECE.min(rest.len())).unwrap_or_default();
@@ -535,17 +566,8 @@ pub fn check_evt(
             break;
         };
         rest = rest.get(p.bytes..).unwrap_or_default();
-        for e in batch.iter().take(p.events) {
-            check.events += 1;
-            let Ok(Some(want)) = reader.next_event() else {
-                check.mismatches += 1;
-                continue;
-            };
-            let (t0, want_t0) = *first.get_or_insert((e.t, want.t));
-            if e.t - t0 != want.t - want_t0 || (e.x, e.y, e.on) != (want.x, want.y, want.on) {
-                check.mismatches += 1;
-            }
-        }
+        check.events += p.events as u32;
+        check.mismatches += want.compare(batch.get(..p.events).unwrap_or_default());
         if p.bytes == 0 {
             // A cut word at the end: the words ended inside one.
             check.mismatches += 1;
@@ -557,8 +579,8 @@ pub fn check_evt(
     }
     // The same words through the `EventSource` a firmware would run, 7 bytes per read (words
     // straddle reads; an EVT 2.1 word spans two): the same events again.
-    let (Ok(mut reader), mut source) = (
-        EvsReader::new(evs),
+    let (Some(mut want), mut source) = (
+        Expected::new(evs),
         EvtSource::<_, 64>::new(
             Trickle {
                 data: words,
@@ -572,7 +594,6 @@ pub fn check_evt(
         return check;
     };
     let mut seen = 0;
-    let mut first = None;
     loop {
         let n = match source.read_events(&mut batch) {
             Ok(0) => break,
@@ -582,17 +603,8 @@ pub fn check_evt(
                 break;
             }
         };
-        for e in batch.iter().take(n) {
-            seen += 1;
-            let Ok(Some(want)) = reader.next_event() else {
-                check.mismatches += 1;
-                continue;
-            };
-            let (t0, want_t0) = *first.get_or_insert((e.t, want.t));
-            if e.t - t0 != want.t - want_t0 || (e.x, e.y, e.on) != (want.x, want.y, want.on) {
-                check.mismatches += 1;
-            }
-        }
+        seen += n as u32;
+        check.mismatches += want.compare(batch.get(..n).unwrap_or_default());
     }
     // Every word gave its events: none dropped for want of a time base or row.
     if seen != expected || source.decoder().counts().dropped_events > 0 {
