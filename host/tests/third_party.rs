@@ -13,18 +13,19 @@ fn dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/third-party")
 }
 
-/// The events an engine was given: an (N, 4) int32 `[x, y, t_us, p]` array.
+/// The events an engine was given: an (N, 4) int32 or int64 `[x, y, t_us, p]` array
+/// (`stem` relative to the fixtures' folder).
 fn expected(stem: &str) -> Vec<(u8, Event)> {
     let bytes = std::fs::read(dir().join(format!("{stem}.npy"))).unwrap();
     let npy = npyz::NpyFile::new(&bytes[..]).unwrap();
-    let v: Vec<i32> = npy.into_vec().unwrap();
+    let v: Vec<i64> = if npy.dtype() == npyz::DType::Plain("<i4".parse().unwrap()) {
+        let v: Vec<i32> = npy.into_vec().unwrap();
+        v.into_iter().map(i64::from).collect()
+    } else {
+        npy.into_vec().unwrap()
+    };
     v.chunks_exact(4)
-        .map(|r| {
-            (
-                0,
-                Event::new(r[0] as u16, r[1] as u16, i64::from(r[2]), r[3] == 1),
-            )
-        })
+        .map(|r| (0, Event::new(r[0] as u16, r[1] as u16, r[2], r[3] == 1)))
         .collect()
 }
 
@@ -139,13 +140,6 @@ fn sizes_the_files_state_or_imply() {
 #[test]
 fn evt21_files_read_as_evutils_and_evlib_read_them() {
     let dir = dir().join("evt21");
-    let expected64 = |stem: &str| -> Vec<(u8, Event)> {
-        let bytes = std::fs::read(dir.join(format!("{stem}.npy"))).unwrap();
-        let v: Vec<i64> = npyz::NpyFile::new(&bytes[..]).unwrap().into_vec().unwrap();
-        v.chunks_exact(4)
-            .map(|r| (0, Event::new(r[0] as u16, r[1] as u16, r[2], r[3] == 1)))
-            .collect()
-    };
     for (stem, files) in [
         (
             "street-2000",
@@ -156,7 +150,7 @@ fn evt21_files_read_as_evutils_and_evlib_read_them() {
             ["vectors.evt21-legacy.raw", "vectors.evt21-little.raw"],
         ),
     ] {
-        let want = expected64(stem);
+        let want = expected(&format!("evt21/{stem}"));
         for (file, format) in files.iter().zip(["evt21-legacy", "evt21"]) {
             let mut r = open(&dir.join(file), None);
             assert_eq!(r.info().format.name(), format, "{file}");
