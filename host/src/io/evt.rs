@@ -591,13 +591,12 @@ const MAX_WRITE_GAP_PERIODS: i64 = 1 << 24;
 /// outside the stated sensor. Readers that keep time from going back (faery) read steps back
 /// differently.
 pub struct Evt3Writer<W: std::io::Write> {
-    out: W,
+    out: WordOut<W>,
     size: (u16, u16),
     origin: Option<i64>,
     high: Option<i64>,
     low: Option<i64>,
     y: Option<u16>,
-    words: Vec<u8>,
 }
 
 impl<W: std::io::Write> Evt3Writer<W> {
@@ -611,25 +610,19 @@ impl<W: std::io::Write> Evt3Writer<W> {
              % integrator_name evpose\n% end\n"
         )?;
         Ok(Self {
-            out,
+            out: WordOut::new(out),
             size: (width, height),
             origin: None,
             high: None,
             low: None,
             y: None,
-            words: Vec::with_capacity(1 << 16),
         })
     }
 
-    /// Appends a word of type `ty` (its payload's low 12 bits); writes the buffer out when full.
+    /// Appends a word of type `ty` (its payload's low 12 bits).
     fn word(&mut self, ty: u16, payload: i64) -> std::io::Result<()> {
         let w = (ty << 12) | (payload & 0xFFF) as u16;
-        self.words.extend_from_slice(&w.to_le_bytes());
-        if self.words.len() >= 1 << 16 {
-            self.out.write_all(&self.words)?;
-            self.words.clear();
-        }
-        Ok(())
+        self.out.push(&w.to_le_bytes())
     }
 
     /// Appends `events` in their order.
@@ -701,7 +694,39 @@ impl<W: std::io::Write> Evt3Writer<W> {
     }
 
     /// Writes what is buffered and hands the output back.
-    pub fn finish(mut self) -> std::io::Result<W> {
+    pub fn finish(self) -> std::io::Result<W> {
+        self.out.finish()
+    }
+}
+
+/// A RAW writer's words, collected and written to `out` 64 KiB at a time (faster than a
+/// `BufWriter`'s call per 2- to 8-byte word: `convert` to EVT 3.0 of 8 M events took 103–119 ms
+/// against 125–134 that way).
+struct WordOut<W: std::io::Write> {
+    out: W,
+    words: Vec<u8>,
+}
+
+impl<W: std::io::Write> WordOut<W> {
+    fn new(out: W) -> Self {
+        Self {
+            out,
+            words: Vec::with_capacity(1 << 16),
+        }
+    }
+
+    /// Appends a word's bytes; writes the buffer out when full.
+    fn push(&mut self, word: &[u8]) -> std::io::Result<()> {
+        self.words.extend_from_slice(word);
+        if self.words.len() >= 1 << 16 {
+            self.out.write_all(&self.words)?;
+            self.words.clear();
+        }
+        Ok(())
+    }
+
+    /// Writes what is buffered, flushes, and hands the output back.
+    fn finish(mut self) -> std::io::Result<W> {
         self.out.write_all(&self.words)?;
         self.out.flush()?;
         Ok(self.out)
@@ -779,7 +804,7 @@ const MAX_WRITE_STEP_PERIODS_2: i64 = (1 << 27) - 1;
 /// take a small one as given (OpenEB logs it), evutils as a wrap, faery keeps time from going
 /// back.
 pub struct Evt2Writer<W: std::io::Write> {
-    out: W,
+    out: WordOut<W>,
     encoding: Encoding,
     size: (u16, u16),
     origin: Option<i64>,
@@ -787,7 +812,6 @@ pub struct Evt2Writer<W: std::io::Write> {
     high: Option<i64>,
     /// EVT 2.1: the word being filled (its upper half, mask, and the column of its last event).
     pending: Option<(u32, u32, u16)>,
-    words: Vec<u8>,
 }
 
 impl<W: std::io::Write> Evt2Writer<W> {
@@ -820,13 +844,12 @@ impl<W: std::io::Write> Evt2Writer<W> {
             "{header}% geometry {width}x{height}\n% integrator_name evpose\n% end\n"
         )?;
         Ok(Self {
-            out,
+            out: WordOut::new(out),
             encoding,
             size: (width, height),
             origin: None,
             high: None,
             pending: None,
-            words: Vec::with_capacity(1 << 16),
         })
     }
 
@@ -834,19 +857,15 @@ impl<W: std::io::Write> Evt2Writer<W> {
     fn word(&mut self, upper: u32, mask: u32) -> std::io::Result<()> {
         match self.encoding {
             Encoding::Evt21 => self
-                .words
-                .extend_from_slice(&(u64::from(upper) << 32 | u64::from(mask)).to_le_bytes()),
+                .out
+                .push(&(u64::from(upper) << 32 | u64::from(mask)).to_le_bytes()),
             Encoding::Evt21Legacy => {
-                self.words.extend_from_slice(&upper.to_le_bytes());
-                self.words.extend_from_slice(&mask.to_le_bytes());
+                let (u, m) = (upper.to_le_bytes(), mask.to_le_bytes());
+                self.out
+                    .push(&[u[0], u[1], u[2], u[3], m[0], m[1], m[2], m[3]])
             }
-            _ => self.words.extend_from_slice(&upper.to_le_bytes()),
+            _ => self.out.push(&upper.to_le_bytes()),
         }
-        if self.words.len() >= 1 << 16 {
-            self.out.write_all(&self.words)?;
-            self.words.clear();
-        }
-        Ok(())
     }
 
     /// Writes the EVT 2.1 word being filled, if any.
@@ -932,8 +951,6 @@ impl<W: std::io::Write> Evt2Writer<W> {
     /// Writes what is buffered and hands the output back.
     pub fn finish(mut self) -> std::io::Result<W> {
         self.flush_pending()?;
-        self.out.write_all(&self.words)?;
-        self.out.flush()?;
-        Ok(self.out)
+        self.out.finish()
     }
 }
