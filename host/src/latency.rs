@@ -53,7 +53,7 @@ pub struct Measured {
     pub instructions_per_input_event: f64,
     /// Decoding a Prophesee sensor's EVT 3.0 words ([`evpose_core::evt`]), instructions per
     /// event: the boot check's words of the first street window (faery's; 2.9 words an event,
-    /// as sparse events rarely share a row; a denser scene's vectors cost less per event).
+    /// as sparse events rarely share a row; vector-heavy data was not measured).
     pub instructions_per_evt3_event: f64,
     /// Decoding EVT 2.1 words in a GenX320's byte order, instructions per event: the boot
     /// check's (evutils's words; one event each, and a time-high word per 64 µs with events:
