@@ -11,8 +11,9 @@ model=${1:-../shared/reference/pointnet-paper.onnx}
 iters=${2:-20}
 # The peer's version is part of every figure: pinned (the README's and the benchmark log's
 # current figures are onnxruntime 1.32's).
-python3 -c "import onnxruntime, onnx" 2>/dev/null ||
-  python3 -m pip install -q "onnxruntime==1.32.0" "onnx==1.18.0" "numpy<3"
+# onnxruntime's quantizer imports ml_dtypes, which neither package installs.
+python3 -c "import onnxruntime, onnx, ml_dtypes" 2>/dev/null ||
+  python3 -m pip install -q "onnxruntime==1.32.0" "onnx==1.18.0" "ml_dtypes==0.7.0" "numpy<3"
 python3 -c "import onnxruntime as o; v = o.__version__; print(f'onnxruntime {v}') if v.startswith('1.32') \
   else print(f'warning: onnxruntime {v}, not the 1.32 of the recorded figures')" >&2
 cargo build --release -q -p evpose-host
