@@ -251,6 +251,13 @@ pub struct PipelineBench {
     pub windows_per_second: f64,
     /// One thread: milliseconds per window (all its cameras).
     pub ms_per_window: f64,
+    /// One thread: seconds of the fastest pass (on a shared machine, the pass least disturbed
+    /// by other work; the median moves with the machine's load).
+    pub fastest_seconds_per_pass: f64,
+    /// One thread: events per second in the fastest pass.
+    pub fastest_events_per_second: f64,
+    /// One thread: milliseconds per window in the fastest pass.
+    pub fastest_ms_per_window: f64,
     /// Threads of the parallel run (recordings in parallel, one pass per task).
     pub threads: usize,
     /// All threads: events per second.
@@ -314,6 +321,7 @@ pub fn pipeline(
     }
     times.sort_by(f64::total_cmp);
     let median = median(&times);
+    let fastest = times.first().copied().unwrap_or(median);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads.max(1))
         .build()?;
@@ -345,6 +353,9 @@ pub fn pipeline(
         events_per_second: events as f64 / median,
         windows_per_second: windows as f64 / median,
         ms_per_window: 1e3 * median / windows.max(1) as f64,
+        fastest_seconds_per_pass: fastest,
+        fastest_events_per_second: events as f64 / fastest,
+        fastest_ms_per_window: 1e3 * fastest / windows.max(1) as f64,
         threads: threads.max(1),
         parallel_events_per_second: (events * tasks as u64) as f64 / wall,
         parallel_windows_per_second: (windows * tasks) as f64 / wall,

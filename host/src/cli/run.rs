@@ -426,6 +426,11 @@ pub fn bench_pipeline(a: &BenchPipelineArgs) -> Result<()> {
         b.passes
     );
     println!(
+        "            {:.2} M events/s, {:.3} ms per window in the fastest pass",
+        b.fastest_events_per_second / 1e6,
+        b.fastest_ms_per_window
+    );
+    println!(
         "{} threads: {:.2} M events/s, {:.0} windows/s (independent passes in parallel)",
         b.threads,
         b.parallel_events_per_second / 1e6,
