@@ -1035,7 +1035,7 @@ fn bench_pipeline_times_the_whole_run() {
     assert!((per_window * 12.0 - per_pass * 1e3).abs() < 1e-6 * per_pass * 1e3);
     // Two passes: the median is their mean, the fastest the faster one.
     let fastest = v["fastest_seconds_per_pass"].as_f64().unwrap();
-    assert!(fastest > 0.0 && fastest <= per_pass, "{v}");
+    assert!(fastest > 0.0 && fastest < per_pass, "{v}");
     let fastest_window = v["fastest_ms_per_window"].as_f64().unwrap();
     assert!((fastest_window * 12.0 - fastest * 1e3).abs() < 1e-6 * fastest * 1e3);
     let fastest_rate = v["fastest_events_per_second"].as_f64().unwrap();

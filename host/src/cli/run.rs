@@ -390,8 +390,8 @@ pub struct BenchPipelineArgs {
     /// Recording (default: the bundled clip), model, engine, cameras, as `evpose run`.
     #[command(flatten)]
     pub source: SourceArgs,
-    /// Timed passes on one thread (the median is reported; at least 1); the parallel run makes
-    /// this many per thread.
+    /// Timed passes on one thread (the median and the fastest are reported; at least 1); the
+    /// parallel run makes this many per thread.
     #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..))]
     pub passes: u32,
     /// Threads of the parallel run (default: all cores).

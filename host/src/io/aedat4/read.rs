@@ -163,7 +163,7 @@ impl Merge {
     /// [`Merge::give_plain`] for `N` cameras: their next events' keys `t · 2^8 + camera` side
     /// by side, the least one given, no queue touched until the end. The least key is taken
     /// with selects, not a branch per camera: the cameras of a recording interleave at random,
-    /// so a branch on which is earlier mispredicts (four cameras: 27 → 38 M events/s in `cargo
+    /// so a branch on which is earlier is hard to predict (four cameras: 27 → 38 M events/s in `cargo
     /// bench -p evpose-host --bench readers`, against one event at a time through
     /// [`Merge::earliest`]).
     fn give_plain_n<const N: usize>(&mut self, latest: i64, batch: &mut Batch) {
