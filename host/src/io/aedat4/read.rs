@@ -144,7 +144,7 @@ impl Merge {
     }
 
     /// [`Merge::give_one`] repeated (`latest`: [`Merge::latest`]) while every camera's next
-    /// event is due at its own time (not a glitch, [`Merge::refresh`]) within ±2^55 µs, for
+    /// event is due at its own time (not a glitch, [`Merge::refresh`]) in `[−2^55, 2^55)` µs, for
     /// files of 2 to 8 cameras (more are merged event by event). Stops before a front it does not take; the
     /// caller gives that one.
     fn give_plain(&mut self, latest: i64, batch: &mut Batch) {
@@ -237,7 +237,7 @@ impl Merge {
 
 /// [`Merge::give_plain`]'s key of `q[i]` as camera `c`'s next event (`prev`: the time of the
 /// camera's event before it): `Some(i64::MAX)` past the end of `q`, `Some(t · 2^8 + c)` where
-/// it is due at its own time `t` (what [`Merge::refresh`] computes) and `|t| < 2^55`, else
+/// it is due at its own time `t` (what [`Merge::refresh`] computes) in `[−2^55, 2^55)`, else
 /// `None`.
 fn plain_key(q: &[Event], i: usize, prev: i64, c: usize) -> Option<i64> {
     const LIMIT: i64 = 1 << 55;
@@ -732,13 +732,30 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    /// A merge over `queues` (each camera's buffered events), as [`Aedat4Reader`] leaves it
-    /// after loading them, its cameras' last given times `given`.
-    fn merge(queues: &[Vec<Event>], given: &[i64], eof: bool) -> Merge {
+    /// A merge over `queues` (each camera's buffered events, in ring buffers that start
+    /// `skew` slots in, so that longer ones wrap), as [`Aedat4Reader`] leaves it after loading
+    /// them, its cameras' last given times `given`. With `unforced`, the count of buffered
+    /// events is set `MERGE_EVENTS` higher (too many to buffer in a test) less `unforced`, so
+    /// that all but the last `unforced` events given are ready whatever their time.
+    fn merge(
+        queues: &[Vec<Event>],
+        given: &[i64],
+        eof: bool,
+        skew: usize,
+        unforced: Option<usize>,
+    ) -> Merge {
+        let count = queues.iter().map(Vec::len).sum::<usize>();
         let n = queues.len();
+        let ring = |q: &Vec<Event>| {
+            let mut d = VecDeque::with_capacity(q.len() + skew);
+            d.extend(std::iter::repeat_n(Event::default(), skew));
+            d.drain(..skew);
+            d.extend(q.iter().copied());
+            d
+        };
         let mut m = Merge {
-            queues: queues.iter().map(|q| q.iter().copied().collect()).collect(),
-            buffered: queues.iter().map(Vec::len).sum(),
+            queues: queues.iter().map(ring).collect(),
+            buffered: unforced.map_or(count, |u| MERGE_EVENTS + count.saturating_sub(u)),
             last: (queues.iter())
                 .map(|q| q.last().map_or(i64::MIN, |e| e.t))
                 .collect(),
@@ -763,15 +780,24 @@ mod tests {
     }
 
     /// A camera's events: mostly rising times on a coarse grid (ties across cameras), some
-    /// going back, some glitches far ahead, a few times beyond the fast keys' range.
+    /// going back, some glitches far ahead, a few at and beyond the fast keys' range.
     fn camera() -> impl Strategy<Value = Vec<Event>> {
+        const EDGES: [i64; 7] = [
+            i64::MIN,
+            -(1 << 55) - 1,
+            -(1 << 55),
+            (1 << 55) - 1,
+            1 << 55,
+            i64::MAX - 1,
+            i64::MAX,
+        ];
         let steps = (0u8..40, 0i64..40, any::<bool>());
         prop::collection::vec(steps, 0..300).prop_map(|steps| {
             let mut t = 0;
             let at = |kind: u8, dt: i64, t: &mut i64| match kind {
-                0 | 1 => *t + 3 * MERGE_SPAN_US, // a glitch ahead
-                2 => *t - dt * 1000,             // backwards
-                3 if dt == 0 => i64::MAX - dt,   // out of the keys' range
+                0 | 1 => *t + 3 * MERGE_SPAN_US,   // a glitch ahead
+                2 => *t - dt * 1000,               // backwards
+                3 if dt < 7 => EDGES[dt as usize], // at the keys' range
                 _ => {
                     *t += dt * 1000;
                     *t
@@ -792,8 +818,11 @@ mod tests {
             given in prop::collection::vec(prop_oneof![Just(i64::MIN), -400_000i64..400_000], 1..4),
             eof in any::<bool>(),
             room in 1usize..3000,
+            skew in 0usize..400,
+            unforced in prop::option::of(0usize..30),
         ) {
-            let (mut a, mut b) = (merge(&queues, &given, eof), merge(&queues, &given, eof));
+            let a = || merge(&queues, &given, eof, skew, unforced);
+            let (mut a, mut b) = (a(), a());
             let full = Batch {
                 events: vec![Event::new(0, 0, 0, false); BATCH_EVENTS - room],
                 cameras: vec![0; BATCH_EVENTS - room],
