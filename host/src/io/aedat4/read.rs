@@ -143,10 +143,10 @@ impl Merge {
         }
     }
 
-    /// [`Merge::give_one`] repeated (`latest`: [`Merge::latest`]) while every camera's next
-    /// event is due at its own time (not a glitch, [`Merge::refresh`]) in `[−2^55, 2^55)` µs, for
-    /// files of 2 to 8 cameras (more are merged event by event). Stops before a front it does not take; the
-    /// caller gives that one.
+    /// [`Merge::give_one`] repeated (`latest`: [`Merge::latest`]) for files of 2 to 8 cameras
+    /// (more are merged event by event), while the earliest camera's next event is due
+    /// ([`Merge::refresh`]) in `[−2^55, 2^55)` µs ([`front_key`]). Stops before any other event;
+    /// the caller gives that one.
     fn give_plain(&mut self, latest: i64, batch: &mut Batch) {
         match self.queues.len() {
             2 => self.give_plain_n::<2>(latest, batch),
@@ -182,13 +182,11 @@ impl Merge {
         let thr = latest.saturating_sub(MERGE_SPAN_US);
         let room = BATCH_EVENTS.saturating_sub(batch.len());
         let mut slices: [&[Event]; N] = [&[]; N];
-        let mut keys = [NONE; N];
+        // Each camera's next event's key, and whether the loop stops there ([`front_key`]).
+        let (mut keys, mut stops) = ([NONE; N], [false; N]);
         for (c, q) in queues.iter_mut().enumerate() {
             slices[c] = q.make_contiguous();
-            match plain_key(slices[c], 0, self.given[c], c) {
-                Some(key) => keys[c] = key,
-                None => return,
-            }
+            (keys[c], stops[c]) = front_key(slices[c], 0, self.given[c], c);
         }
         let mut next = [0usize; N];
         batch.events.reserve(room);
@@ -197,7 +195,7 @@ impl Merge {
         while n < room {
             let key = keys.iter().copied().fold(NONE, i64::min);
             let (c, t) = ((key & 0xff) as usize, key >> 8);
-            if key == NONE || (n >= force && t > thr) {
+            if key == NONE || stops.get(c).is_none_or(|&s| s) || (n >= force && t > thr) {
                 break;
             }
             let (Some(&q), Some(&i)) = (slices.get(c), next.get(c)) else {
@@ -208,11 +206,8 @@ impl Merge {
             };
             batch.push(c as u8, e);
             n += 1;
-            let Some(key) = plain_key(q, i + 1, e.t, c) else {
-                next[c] = i + 1;
-                break;
-            };
-            (keys[c], next[c]) = (key, i + 1);
+            (keys[c], stops[c]) = front_key(q, i + 1, e.t, c);
+            next[c] = i + 1;
         }
         self.buffered -= n;
         for (c, (q, &taken)) in queues.iter_mut().zip(&next).enumerate() {
@@ -235,18 +230,33 @@ impl Merge {
     }
 }
 
-/// [`Merge::give_plain`]'s key of `q[i]` as camera `c`'s next event (`prev`: the time of the
-/// camera's event before it): `Some(i64::MAX)` past the end of `q`, `Some(t · 2^8 + c)` where
-/// it is due at its own time `t` (what [`Merge::refresh`] computes) in `[−2^55, 2^55)`, else
-/// `None`.
-fn plain_key(q: &[Event], i: usize, prev: i64, c: usize) -> Option<i64> {
+/// Where `q[i]`, camera `c`'s next event, goes in [`Merge::give_plain_n`]'s loop (`prev`: the
+/// time of the camera's event before it): its key, and whether the loop stops when it is the
+/// least. Past the end of `q`: `i64::MAX`, no event. An event due at `d` ([`Merge::refresh`]:
+/// its own time, or its next event's for a glitch) in `[−2^55, 2^55)`: `d · 2^8 + c`, in the
+/// merge's order. Due beyond that range: the range's end's or start's key, no later than its
+/// place in the merge, and the loop stops there, so that [`Merge::give_one`] gives it (the loop
+/// may then stop early, never late).
+fn front_key(q: &[Event], i: usize, prev: i64, c: usize) -> (i64, bool) {
     const LIMIT: i64 = 1 << 55;
     let Some(e) = q.get(i) else {
-        return Some(i64::MAX);
+        return (i64::MAX, false);
     };
     let far = e.t.saturating_sub(MERGE_SPAN_US);
-    let glitch = q.get(i + 1).is_some_and(|next| next.t < far) && prev < far;
-    (!glitch && (-LIMIT..LIMIT).contains(&e.t)).then_some(e.t << 8 | c as i64)
+    let next = q.get(i + 1).map(|next| next.t);
+    let glitch = next.is_some_and(|t| t < far) && prev < far;
+    let due = match next {
+        Some(t) if glitch => t,
+        _ => e.t,
+    };
+    let key = if due >= LIMIT {
+        (LIMIT - 1) << 8
+    } else if due < -LIMIT {
+        i64::MIN
+    } else {
+        due << 8
+    } | c as i64;
+    (key, !(-LIMIT..LIMIT).contains(&due))
 }
 
 /// What the file header says.
@@ -792,21 +802,30 @@ mod tests {
             i64::MAX,
         ];
         let steps = (0u8..40, 0i64..40, any::<bool>());
-        prop::collection::vec(steps, 0..300).prop_map(|steps| {
-            let mut t = 0;
-            let at = |kind: u8, dt: i64, t: &mut i64| match kind {
-                0 | 1 => *t + 3 * MERGE_SPAN_US,   // a glitch ahead
-                2 => *t - dt * 1000,               // backwards
-                3 if dt < 7 => EDGES[dt as usize], // at the keys' range
-                _ => {
-                    *t += dt * 1000;
-                    *t
-                }
-            };
-            (steps.into_iter())
-                .map(|(kind, dt, on)| Event::new(dt as u16, 1, at(kind, dt, &mut t), on))
-                .collect()
-        })
+        prop::collection::vec(steps, 0..300)
+            .prop_map(|steps| {
+                let mut t = 0;
+                let at = |kind: u8, dt: i64, t: &mut i64| match kind {
+                    0 | 1 => *t + 3 * MERGE_SPAN_US,   // a glitch ahead
+                    2 => *t - dt * 1000,               // backwards
+                    3 if dt < 7 => EDGES[dt as usize], // at the keys' range
+                    _ => {
+                        *t += dt * 1000;
+                        *t
+                    }
+                };
+                (steps.into_iter())
+                    .map(|(kind, dt, on)| Event::new(dt as u16, 1, at(kind, dt, &mut t), on))
+                    .collect::<Vec<_>>()
+            })
+            .prop_flat_map(|events| {
+                // Often a last event at an edge: such fronts stay till the end, side by side.
+                let tail = prop::option::weighted(0.3, 0..EDGES.len());
+                (Just(events), tail).prop_map(|(mut events, tail)| {
+                    events.extend(tail.map(|k| Event::new(0, 2, EDGES[k], true)));
+                    events
+                })
+            })
     }
 
     proptest! {
