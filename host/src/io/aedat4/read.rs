@@ -116,7 +116,7 @@ impl Merge {
     /// Moves the buffered events that are ready into `batch` in time order, until it holds
     /// [`BATCH_EVENTS`]: what [`Merge::give_one`] gives event by event (the earliest camera's
     /// next, while it is ready), mostly through [`Merge::give_plain`], which gives the same
-    /// events in about half the time where no front is a glitch.
+    /// events in about half the time while no camera's next event is due beyond ±2^55 µs.
     fn give(&mut self, batch: &mut Batch) {
         let latest = self.latest();
         while batch.len() < BATCH_EVENTS {
