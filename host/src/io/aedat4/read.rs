@@ -90,13 +90,9 @@ impl Merge {
     /// holding its camera back.
     fn refresh(&mut self, c: usize) {
         let q = &self.queues[c];
-        self.due[c] = q.front().map(|e| {
-            let far = e.t.saturating_sub(MERGE_SPAN_US);
-            match q.get(1) {
-                Some(next) if next.t < far && self.given[c] < far => next.t,
-                _ => e.t,
-            }
-        });
+        self.due[c] = q
+            .front()
+            .map(|e| due_time(e.t, q.get(1).map(|next| next.t), self.given[c]));
     }
 
     /// The camera whose next event is due first, if any is buffered, and when.
@@ -160,8 +156,8 @@ impl Merge {
         }
     }
 
-    /// [`Merge::give_plain`] for `N` cameras: their next events' keys `t · 2^8 + camera` side
-    /// by side, the least one given, no queue touched until the end. The least key is taken
+    /// [`Merge::give_plain`] for `N` cameras: their next events' keys `due · 2^8 + camera`
+    /// ([`front_key`]) side by side, the least one given, no queue touched until the end. The least key is taken
     /// with selects, not a branch per camera: the cameras of a recording interleave at random,
     /// so a branch on which is earlier is hard to predict (four cameras: 27 → 38 M events/s in `cargo
     /// bench -p evpose-host --bench readers`, against one event at a time through
@@ -230,6 +226,16 @@ impl Merge {
     }
 }
 
+/// When a camera's next event, at `t`, is due ([`Merge::refresh`]), from the time of the event
+/// after it (if buffered) and of the one before it (given).
+fn due_time(t: i64, next: Option<i64>, prev: i64) -> i64 {
+    let far = t.saturating_sub(MERGE_SPAN_US);
+    match next {
+        Some(next) if next < far && prev < far => next,
+        _ => t,
+    }
+}
+
 /// Where `q[i]`, camera `c`'s next event, goes in [`Merge::give_plain_n`]'s loop (`prev`: the
 /// time of the camera's event before it): its key, and whether the loop stops when it is the
 /// least. Past the end of `q`: `i64::MAX`, no event. An event due at `d` ([`Merge::refresh`]:
@@ -242,13 +248,7 @@ fn front_key(q: &[Event], i: usize, prev: i64, c: usize) -> (i64, bool) {
     let Some(e) = q.get(i) else {
         return (i64::MAX, false);
     };
-    let far = e.t.saturating_sub(MERGE_SPAN_US);
-    let next = q.get(i + 1).map(|next| next.t);
-    let glitch = next.is_some_and(|t| t < far) && prev < far;
-    let due = match next {
-        Some(t) if glitch => t,
-        _ => e.t,
-    };
+    let due = due_time(e.t, q.get(i + 1).map(|next| next.t), prev);
     let key = if due >= LIMIT {
         (LIMIT - 1) << 8
     } else if due < -LIMIT {
